@@ -1,0 +1,1 @@
+"""Radar captures: the Capture container and readers for real formats."""
