@@ -1,0 +1,115 @@
+"""The ``sionna-mmir`` command line: help, happy paths, bad input -> exit 2, no partial output."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from sionna_mmir import Capture, RadarConfig
+from sionna_mmir.cli.main import EXIT_BAD_INPUT, main
+
+SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth"]
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "sionna_mmir.cli.main", *args],
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("cmd", SUBCOMMANDS)
+def test_01_help(cmd, capsys):
+    with pytest.raises(SystemExit) as e:
+        main([cmd, "--help"])
+    assert e.value.code == 0
+    assert "usage: sionna-mmir " + cmd in capsys.readouterr().out
+
+
+def test_02_synth_then_info_and_ra(tmp_path, capsys):
+    out = tmp_path / "t.h5"
+    assert main(["synth", "--radar", "mmwcas", "--chirps", "1", "--target", "3.0,10",
+                 "--output", str(out)]) == 0
+    assert main(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    line = [l for l in text.splitlines() if l.startswith("strongest")][0]
+    r, az = float(line.split()[1]), float(line.split()[3])
+    radar = RadarConfig.mmwcas()
+    assert abs(r - 3.0) <= radar.range_resolution
+    assert abs(az - 10.0) < 1.0
+    png = tmp_path / "ra.png"
+    assert main(["ra", str(out), "--out", str(png)]) == 0
+    assert png.stat().st_size > 1000
+
+
+def test_03_missing_file_exits_2(tmp_path):
+    res = _run("info", str(tmp_path / "nope.mat"))
+    assert res.returncode == EXIT_BAD_INPUT
+    assert "nope.mat" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_04_truncated_bin_exits_2_no_output(tmp_path, measured_dir):
+    src = measured_dir / "awr1843_dca1000" / "moving_target_500frames.bin"
+    if not src.exists():
+        pytest.skip(f"{src} absent")
+    bad = tmp_path / "cut.bin"
+    bad.write_bytes(src.read_bytes()[:10001])
+    out = tmp_path / "out.h5"
+    res = _run("convert", str(bad), str(out))
+    assert res.returncode == EXIT_BAD_INPUT
+    assert "cut.bin" in res.stderr
+    assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["cut.bin"]
+
+
+def test_05_nan_capture_rejected(tmp_path):
+    radar = RadarConfig.awr1843()
+    cap = Capture(np.ones(radar.adc_shape, np.complex64), radar)
+    path = tmp_path / "c.h5"
+    cap.save(path)
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        f["adc"][0, 0, 0, 0, 3] = np.nan
+    res = _run("convert", str(path), str(tmp_path / "o.h5"))
+    assert res.returncode == EXIT_BAD_INPUT
+    assert "NaN" in res.stderr
+    assert not (tmp_path / "o.h5").exists()
+
+
+def test_06_bad_target_and_existing_output(tmp_path):
+    res = _run("synth", "--target", "abc", "--output", str(tmp_path / "x.h5"))
+    assert res.returncode == EXIT_BAD_INPUT and "--target" in res.stderr
+    assert not (tmp_path / "x.h5").exists()
+    existing = tmp_path / "keep.h5"
+    existing.write_text("old")
+    res = _run("synth", "--target", "2,0", "--output", str(existing))
+    assert res.returncode == EXIT_BAD_INPUT and "exists" in res.stderr
+    assert existing.read_text() == "old"
+
+
+def test_07_mat_without_calibresult(tmp_path):
+    import scipy.io as sio
+
+    bad = tmp_path / "bad.mat"
+    sio.savemat(bad, {"something": np.zeros(3)})
+    res = _run("info", str(bad))
+    assert res.returncode == EXIT_BAD_INPUT
+    assert "bad.mat" in res.stderr and "calibResult" in res.stderr
+
+
+def test_08_demo_runs_on_embedded_capture(tmp_path, monkeypatch):
+    """Without measured data the demo says so and runs on its synthetic capture."""
+    monkeypatch.setenv("SIONNA_MMIR_MEASURED", str(tmp_path / "absent"))
+    monkeypatch.chdir(tmp_path)
+    from sionna_mmir.cli import demo
+
+    monkeypatch.setattr(demo, "find_measured_dir", lambda: None)
+    summary = demo.run_demo(out=tmp_path / "rep")
+    assert summary["note"] and "synthetic" in summary["note"]
+    assert abs(summary["corner_range_m"] - 4.74) < 0.06
+    assert summary["metrics"]["ra_correlation"] > 0.9
+    for f in ("ra_panels.png", "report.md", "summary.json", "model.h5"):
+        assert (tmp_path / "rep" / f).stat().st_size > 0
+    with pytest.raises(FileExistsError):
+        demo.run_demo(out=tmp_path / "rep")
+    assert not [p for p in os.listdir(tmp_path) if p.startswith(".demo-")]
