@@ -215,6 +215,9 @@ def test_09_run_folder_and_loader(calib, tmp_path):
         via_dir = load_capture(root / "run0", frame=3)
         via_file = load_capture(data / "frame_3.bin")
     assert np.array_equal(via_dir.adc, cap.adc) and np.array_equal(via_file.adc, cap.adc)
+    given = load_capture(root / "run0", frame=3, radar=radar.replace(name="mine"))
+    assert given.radar.name == "mine" and np.array_equal(given.adc, cap.adc)
+    assert np.array_equal(load_capture(data / "frame_3.bin", frame=3, radar=radar).adc, cap.adc)
     with pytest.raises(FileNotFoundError, match="frame_4.bin"):
         read_coloradar_run(root / "run0", frame=4)
 

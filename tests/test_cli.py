@@ -27,15 +27,19 @@ def test_01_help(cmd, capsys):
 
 def test_02_synth_then_info_and_ra(tmp_path, capsys):
     out = tmp_path / "t.h5"
-    assert main(["synth", "--radar", "mmwcas", "--chirps", "1", "--target", "3.0,10",
+    assert main(["synth", "--radar", "mmwcas", "--chirps", "1", "--target", "8.0,10",
                  "--output", str(out)]) == 0
     assert main(["info", str(out)]) == 0
     text = capsys.readouterr().out
     line = [l for l in text.splitlines() if l.startswith("strongest")][0]
     r, az = float(line.split()[1]), float(line.split()[3])
     radar = RadarConfig.mmwcas()
-    assert abs(r - 3.0) <= radar.range_resolution
-    assert abs(az - 10.0) < 1.0
+    # the angle FFT looks from the azimuth row's phase centre ((tx + rx) / 2)
+    centre = 0.5 * (radar.tx_positions[3:, None, :] + radar.rx_positions[None]).reshape(-1, 3).mean(0)
+    x = 8.0 * np.array([np.cos(np.radians(10)), np.sin(np.radians(10)), 0.0])
+    seen = np.degrees(np.arctan2(x[1] - centre[1], x[0] - centre[0]))
+    assert abs(r - np.linalg.norm(x - centre)) <= radar.range_resolution
+    assert abs(az - seen) < 0.5
     png = tmp_path / "ra.png"
     assert main(["ra", str(out), "--out", str(png)]) == 0
     assert png.stat().st_size > 1000

@@ -177,6 +177,9 @@ def test_08_virtual_array_facts_from_the_layouts():
     assert casc.azimuth_row == 0
     assert int((casc.counts[0] > 0).sum()) == 86       # "86 uniformly sampled along azimuth"
     assert casc.row_support == (0, 86)
+    # row phase centre: mean Tx az 16, mean Rx az (6 + 50 + 396) / 16 = 28.25 (lambda/2 at
+    # 76.8 GHz = 1.95171 mm) -> (16 + 28.25) / 2 * 1.95171 mm = 4.318 cm to the left
+    assert np.allclose(casc.phase_centre(), [0, 22.125 * C / (2 * 76.8e9), 0])
     awr = VirtualArray(RadarConfig.awr1843())
     assert awr.num_unique == 12 and int((awr.counts[awr.azimuth_row] > 0).sum()) == 8
     dense = VirtualArray(RadarConfig.dense(100, 100))   # half-integer positions

@@ -71,7 +71,8 @@ def _number(path, lineno, key, text):
     try:
         v = float(text)
     except ValueError:
-        raise ConfigError(f"{path}:{lineno}: key {key!r} has a non-numeric value {text!r}") from None
+        raise ConfigError(f"{path}:{lineno}: key {key!r} has a non-numeric value "
+                          f"{text!r}") from None
     if not np.isfinite(v):
         raise ConfigError(f"{path}:{lineno}: key {key!r} is not finite ({text!r})")
     return v
@@ -150,7 +151,8 @@ def read_antenna_cfg(path) -> dict:
             try:
                 idx = int(parts[1])
             except ValueError:
-                raise ConfigError(f"{path}:{lineno}: {key} index {parts[1]!r} is not an integer") from None
+                raise ConfigError(f"{path}:{lineno}: {key} index {parts[1]!r} is not an "
+                                  f"integer") from None
             if idx in elems[key]:
                 raise ConfigError(f"{path}:{lineno}: {key} index {idx} repeated")
             elems[key][idx] = (_number(path, lineno, f"{key} {idx} X", parts[2]),
@@ -276,7 +278,8 @@ def read_coupling_calib(path) -> np.ndarray:
         if not line:
             continue
         if ":" not in line:
-            raise ConfigError(f"{path}:{lineno}: malformed line {line[:60]!r} (expected 'key:value')")
+            raise ConfigError(f"{path}:{lineno}: malformed line {line[:60]!r} "
+                              f"(expected 'key:value')")
         key, text = (s.strip() for s in line.split(":", 1))
         if key == "data":
             data, data_line = text, lineno
@@ -439,7 +442,8 @@ def read_heatmap_cfg(path) -> dict:
             raise ConfigError(f"{path}:{lineno}: key {key!r} repeated")
         if key in ints or key == "range_bin_width":
             if len(parts) != 2:
-                raise ConfigError(f"{path}:{lineno}: malformed line for {key!r} (expected one value)")
+                raise ConfigError(f"{path}:{lineno}: malformed line for {key!r} "
+                                  f"(expected one value)")
             out[key] = (_integer(path, lineno, key, parts[1]) if key in ints
                         else _number(path, lineno, key, parts[1]))
         elif key in ("azimuth_bins", "elevation_bins"):

@@ -6,16 +6,23 @@ stream, TI's ``readDCA1000`` convention).  The complex stream is, per frame,
 ``[chirp loop][Tx slot in TDM order][Rx 0..3][sample]``.
 
 Facts checked on ``awr1843_dca1000/moving_target_500frames.bin`` (AWR1843,
-3 Tx x 4 Rx x 128 samples, 500 frames):
+3 Tx x 4 Rx x 128 samples, 500 frames), decoded as above:
 
-* IQ sign: the moving target is in the lower (positive-frequency) half of
-  the range FFT, bins ~14..46 (0.6-2.1 m); no conjugation is needed.
-* Of the orderings that fit the size (Rx-major / sample-major, Rx pairs), only
-  this one gives one continuous target track seen alike by all 12 channels.
-* Known artefacts left as recorded: an image of every tone ``N/2`` bins
-  higher (4-15 dB down, weaker at low beat frequencies, as from a ~half-sample
-  skew between the two LVDS lanes that carry even and odd samples), and more
-  power in even than in odd FFT bins.
+* IQ sign: the moving target stays in the lower (positive-frequency) half of
+  the range FFT, bins ~14..46 (0.6-2.1 m, median 1.7 m); no conjugation.
+* The layout is *not* fully consistent with the data, and is kept because it
+  is TI's documented one (``readDCA1000.m``, OpenRadar) and comes closest to
+  the README's "about 1.0-1.9 m".  But every tone has an image ``N/2`` bins
+  higher (4-15 dB down), and power gathers in even FFT bins.  Looking inside
+  the groups of four, the two complex values ``a = p0 + j p2`` and ``b = p1 + j p3`` carry the same
+  signal with equal amplitude and a phase ``b/a`` proportional to the beat
+  frequency through zero, i.e. ``b`` is ``a`` delayed by 1/4 of a group
+  period, not by 1/2 (two consecutive samples, TI) nor a range-independent
+  antenna phase (two Rx).  Read instead as 128 groups per (Tx, Rx pair) block,
+  the ``a`` values form clean single-tone chirps (1-tap prediction residual
+  6 % vs 64 % for the TI sequence) with the target at twice the beat
+  frequency (1.1-4.2 m).  Which one is physical cannot be settled from this
+  file alone.
 """
 from __future__ import annotations
 

@@ -59,15 +59,17 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
     an unknown extension :class:`CaptureFormatError` listing the supported
     formats, a frame index out of range ``IndexError``.
     """
-    from .coloradar import (find_calib_dir, frame_index_from_name, read_coloradar_frame,
-                            read_coloradar_run)
+    from .coloradar import (find_calib_dir, find_frame_file, frame_index_from_name,
+                            read_coloradar_frame, read_coloradar_run)
 
     p = pathlib.Path(path)
     if not p.exists():
         raise FileNotFoundError(f"{p}: no such file or folder")
     if p.is_dir():
-        return read_coloradar_run(p, frame=0 if frame is None else frame, calib_dir=calib_dir,
-                                  sensor=sensor)
+        index = 0 if frame is None else frame
+        if radar is not None:                 # explicit radar: no calibration lookup
+            return read_coloradar_frame(find_frame_file(p, index, sensor), radar)
+        return read_coloradar_run(p, frame=index, calib_dir=calib_dir, sensor=sensor)
     ext = p.suffix.lower()
     if ext in (".h5", ".hdf5"):
         cap = Capture.load(p)

@@ -85,12 +85,15 @@ def _parse_target(text):
     return vals
 
 
-def point_target_paths(radar, targets):
-    """Exact per-pair delays and unit amplitudes for point targets.
+def point_target_paths(radar, targets, origin=None):
+    """Exact per-pair delays and ``1/R^2`` amplitudes for point targets.
 
     ``targets``: iterable of ``(range_m, azimuth_deg, elevation_deg, v_m_s)``
-    in the radar frame.  Returns ``a [tx, rx, P]``, ``tau``, ``tau_rate``.
+    measured from ``origin`` (radar frame, default the radar origin; pass the
+    virtual aperture's phase centre to place targets where the angle FFT
+    sees them).  Returns ``a [tx, rx, P]``, ``tau`` [s], ``tau_rate``.
     """
+    origin = np.zeros(3) if origin is None else np.asarray(origin, float)
     from ..radar.config import SPEED_OF_LIGHT as C
 
     tx, rx = radar.tx_positions, radar.rx_positions
@@ -98,7 +101,7 @@ def point_target_paths(radar, targets):
     for R, az, el, v in targets:
         az, el = np.radians(az), np.radians(el)
         u = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        x = R * u
+        x = origin + R * u
         d = np.linalg.norm(x - tx, axis=1)[:, None] + np.linalg.norm(x - rx, axis=1)[None, :]
         tau.append(d / C)
         rate.append(np.full(d.shape, 2 * v / C))

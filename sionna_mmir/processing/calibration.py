@@ -177,7 +177,13 @@ def phase_frequency_correct(adc, radar: RadarConfig, frequency_bins, phase, cal_
     if cal_slope == 0 or cal_sample_rate <= 0 or int(cal_num_samples) < 1 or int(interp_factor) < 1:
         raise InputValueError(f"{where}: cal_slope must be non-zero, cal_sample_rate, "
                               f"cal_num_samples and interp_factor positive")
-    t0, r0 = reference
+    try:
+        t0, r0 = (int(v) for v in reference)
+    except (TypeError, ValueError):
+        raise InputValueError(f"{where}: reference must be a (tx, rx) pair, got {reference!r}") \
+            from None
+    if not (0 <= t0 < shape[0] and 0 <= r0 < shape[1]):
+        raise InputValueError(f"{where}: reference {reference} outside [tx, rx] = {shape}")
     db = b - b[t0, r0]                                                   # [tx, rx] fine bins
     pc = p[t0, r0] / p
     pc = pc / np.abs(pc)

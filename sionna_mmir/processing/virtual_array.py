@@ -112,6 +112,21 @@ class VirtualArray:
         out *= scale.reshape((n_cells,) + (1,) * (flat.ndim - 1))
         return out
 
+    def phase_centre(self, azimuth_row_only: bool = True) -> np.ndarray:
+        """Mean two-way phase centre ``(tx + rx) / 2`` of the pairs used [m], ``[3]``.
+
+        Angles of an FFT beamformer are directions seen from the aperture, not
+        from the radar origin.  The cascade's azimuth row is centred about
+        4.3 cm to the left of its origin, so a target at 3 m and 10 deg from
+        the origin appears at ~9.2 deg (plus a near-field bias of a few tenths
+        of a degree below ~14 m).  Place targets (or convert detections) about
+        this point to compare angles.
+        """
+        v = 0.5 * self.radar.virtual_positions()
+        if azimuth_row_only:
+            v = v[self.el_index == self.azimuth_row]
+        return v.reshape(-1, 3).mean(axis=0)
+
     # ----------------------------------------------------------- scatter
     def to_grid(self, channels) -> np.ndarray:
         """Scatter ``[tx, rx, ...]`` onto the grid ``[n_el, n_az, ...]``.
