@@ -214,7 +214,7 @@ def read_coloradar_config(cls, calib_dir, sensor: str = "cascade", **overrides):
     elevation -> +z).  Tx/Rx indices and the TDM order are the file's order.
 
     Repairs (reported with a :class:`ColoRadarRepairWarning` and stored as
-    the list attribute ``notes`` of the returned config, which is not
+    the ``notes`` field of the returned config, which is
     serialised): a time (idle, ADC start, ramp end) above 1 ms is taken to be
     in microseconds (the cascade's ``adc_start_time 6.0`` -> 6 us); a
     ``ramp_end_time`` that ends before the ADC window is scaled by 1e6 (the
@@ -253,7 +253,7 @@ def read_coloradar_config(cls, calib_dir, sensor: str = "cascade", **overrides):
         cfg = cls._from_layout(ant["tx"], ant["rx"], ant["F_design"] * 1e9, **params)
     except ConfigError as e:
         raise ConfigError(f"{folder}: {e}") from None
-    cfg.notes = notes
+    cfg.notes = tuple(notes)
     if notes:
         warnings.warn("; ".join(notes), ColoRadarRepairWarning, stacklevel=2)
     return cfg

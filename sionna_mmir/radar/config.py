@@ -65,6 +65,7 @@ class RadarConfig:
     ``orientation``      ``(yaw, pitch, roll)`` [rad], Sionna convention
     ``name``             a label
     ``design_frequency`` frequency the layout's lambda/2 refers to [Hz]
+    ``notes``            provenance notes (e.g. repaired config values)
     ===================  ========================================================
 
     ADC arrays are always indexed ``[tx, rx, chirp, sample]`` by the Tx/Rx index
@@ -86,8 +87,10 @@ class RadarConfig:
     orientation: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
     name: str = "radar"
     design_frequency: float = 76.8e9
+    notes: tuple = ()
 
     def __post_init__(self):
+        self.notes = tuple(str(n) for n in (self.notes or ()))
         for key in ("start_frequency", "slope", "sample_rate", "idle_time",
                     "adc_start_time", "ramp_end_time", "design_frequency"):
             v = getattr(self, key)
@@ -334,7 +337,7 @@ class RadarConfig:
         ``sensor`` is ``"cascade"`` or ``"single_chip"``.  Tx/Rx indices follow
         the files (which is also the ``[tx][rx]`` order of ColoRadar's
         ``frame_N.bin``).  Known defects of the stored cascade waveform are
-        repaired with a warning in ``self.notes``: ``adc_start_time`` stored in
+        repaired with a ``ColoRadarRepairWarning`` and recorded in ``notes``: ``adc_start_time`` stored in
         microseconds (6.0) and ``ramp_end_time`` stored as 4e-11 (40 us).
         """
         from ..captures.coloradar_calib import read_coloradar_config  # local: avoids cycle
