@@ -8,7 +8,6 @@ Files are written atomically (temporary file in the target folder, then
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -16,6 +15,7 @@ from matplotlib.figure import Figure
 
 from .errors import InputValueError
 from .processing.polar import polar_to_cartesian
+from .utils.atomic import atomic_path
 
 
 def _to_display(ra, db, dynamic_range_db, ref):
@@ -147,15 +147,6 @@ def save_ra_panels(panels: dict, ranges_m, azimuths_rad, path, cartesian: bool =
     if suptitle:
         fig.suptitle(suptitle)
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp_ra_", suffix=".png", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=dpi)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    with atomic_path(path, suffix=".png.part") as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi)
     return path

@@ -18,12 +18,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import tempfile
 
 import numpy as np
 
 from ..errors import CaptureFormatError, InputValueError
 from ..radar.config import RadarConfig
+from ..utils.atomic import atomic_path
 
 FORMAT_NAME = "sionna_mmir.capture"
 FORMAT_VERSION = 1
@@ -101,11 +101,7 @@ class Capture:
         path = os.fspath(path)
         if os.path.exists(path) and not overwrite:
             raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-        folder = os.path.dirname(os.path.abspath(path))
-        os.makedirs(folder, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".capture-", suffix=".h5.part", dir=folder)
-        os.close(fd)
-        try:
+        with atomic_path(path, suffix=".h5.part") as tmp:
             with h5py.File(tmp, "w") as f:
                 f.attrs["format"] = FORMAT_NAME
                 f.attrs["version"] = FORMAT_VERSION
@@ -117,11 +113,6 @@ class Capture:
                     g = f.create_group("extras")
                     for k, v in self.extras.items():
                         g.create_dataset(k, data=v)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-            raise
         return path
 
     @classmethod

@@ -149,14 +149,23 @@ def read_coloradar_run(run_dir, frame: int = 0, calib_dir=None,
         raise InputValueError(f"read_coloradar_run({run}): frame must be a non-negative "
                               f"integer, got {frame!r}")
     frame_path = find_frame_file(run, int(frame), sensor)
-    if calib_dir is None:
-        calib_dir = find_calib_dir(run, sensor)
-        if calib_dir is None:
-            raise ConfigError(f"{run}: no ColoRadar calibration found (looked for "
-                              f"calib/{sensor}/waveform_cfg.txt in {run} and each parent "
-                              f"folder); pass calib_dir")
-    radar = RadarConfig.from_coloradar(calib_dir, sensor)
+    radar, calib_dir = coloradar_radar(run, calib_dir, sensor)
     cap = read_coloradar_frame(frame_path, radar)
     cap.metadata["calib_dir"] = os.fspath(calib_dir)
     cap.metadata["sensor"] = sensor
     return cap
+
+
+def coloradar_radar(where, calib_dir=None, sensor: str = "cascade"):
+    """``(RadarConfig, calib_dir)`` for ColoRadar data in folder ``where``.
+
+    ``calib_dir`` defaults to a ``calib/`` folder found in ``where`` or a
+    parent; none found -> :class:`ConfigError` naming what was searched.
+    """
+    if calib_dir is None:
+        calib_dir = find_calib_dir(where, sensor)
+        if calib_dir is None:
+            raise ConfigError(f"{where}: no ColoRadar calibration found (looked for "
+                              f"calib/{sensor}/waveform_cfg.txt in {where} and each parent "
+                              f"folder); pass calib_dir or radar")
+    return RadarConfig.from_coloradar(calib_dir, sensor), calib_dir

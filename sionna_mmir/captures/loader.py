@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import pathlib
 
-from ..errors import CaptureFormatError, ConfigError
+from ..errors import CaptureFormatError
 from ..radar.config import RadarConfig
 from .capture import Capture
 
@@ -59,7 +59,7 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
     an unknown extension :class:`CaptureFormatError` listing the supported
     formats, a frame index out of range ``IndexError``.
     """
-    from .coloradar import (find_calib_dir, find_frame_file, frame_index_from_name,
+    from .coloradar import (coloradar_radar, find_frame_file, frame_index_from_name,
                             read_coloradar_frame, read_coloradar_run)
 
     p = pathlib.Path(path)
@@ -79,12 +79,7 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
         cap = read_ti_mat(p)
     elif ext == ".bin" and frame_index_from_name(p) is not None:
         if radar is None:
-            cdir = calib_dir if calib_dir is not None else find_calib_dir(p.parent, sensor)
-            if cdir is None:
-                raise ConfigError(f"{p}: a ColoRadar frame needs its radar: pass calib_dir "
-                                  f"or radar (no calib/{sensor}/waveform_cfg.txt found in "
-                                  f"{p.parent} or its parents)")
-            radar = RadarConfig.from_coloradar(cdir, sensor)
+            radar, _ = coloradar_radar(p.parent, calib_dir, sensor)
         cap = read_coloradar_frame(p, radar)
         if frame is not None and frame == frame_index_from_name(p):
             frame = None                     # "frame N" of frame_N.bin is this file

@@ -22,14 +22,23 @@ def _check_new(path, overwrite):
         raise FileExistsError(f"{path} exists; pass --overwrite to replace it")
 
 
+def strongest_return(ra, ranges, az, r_min, r_max):
+    """``(range [m], azimuth [rad], value)`` of the RA maximum within ``[r_min, r_max]``."""
+    sel = (ranges >= r_min) & (ranges <= r_max)
+    if not sel.any():
+        raise InputValueError(f"no range bins between {r_min} and {r_max} m")
+    sub = ra[sel]
+    i, j = np.unravel_index(np.argmax(sub), sub.shape)
+    return float(ranges[sel][i]), float(az[j]), float(sub[i, j])
+
+
 def cmd_info(args) -> int:
     from ..processing.imaging import range_azimuth
 
     cap = _load(args)
     r = cap.radar
     ra, ranges, az = range_azimuth(cap.adc, r)
-    i, j = np.unravel_index(np.argmax(ra[ranges > 0.5] if (ranges > 0.5).any() else ra), ra.shape)
-    i += int(np.argmax(ranges > 0.5)) if (ranges > 0.5).any() else 0
+    r_peak, az_peak, _ = strongest_return(ra, ranges, az, 0.5, ranges[-1])
     print(f"source        {cap.source}")
     print(f"radar         {r.name}: {r.num_tx} tx x {r.num_rx} rx, {r.num_chirps} chirps x "
           f"{r.num_samples} samples")
@@ -37,7 +46,7 @@ def cmd_info(args) -> int:
           f"fs {r.sample_rate / 1e6:.3f} Msps")
     print(f"range         resolution {r.range_resolution * 100:.2f} cm, max {r.max_range:.2f} m")
     print(f"frames        {cap.num_frames}")
-    print(f"strongest     {ranges[i]:.3f} m, {np.degrees(az[j]):+.1f} deg (beyond 0.5 m)")
+    print(f"strongest     {r_peak:.3f} m, {np.degrees(az_peak):+.1f} deg (beyond 0.5 m)")
     return 0
 
 

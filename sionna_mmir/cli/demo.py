@@ -62,13 +62,6 @@ def synthetic_corner_capture(seed: int = 0):
     return Capture(adc, radar, {"description": "embedded synthetic corner room"}, "synthetic")
 
 
-def _detect(ra, ranges, az, r_min, r_max):
-    sel = (ranges >= r_min) & (ranges <= r_max)
-    sub = ra[sel]
-    i, j = np.unravel_index(np.argmax(sub), sub.shape)
-    return float(ranges[sel][i]), float(az[j]), float(sub[i, j])
-
-
 def refine_point_target(adc, radar, r0, az0_deg, origin):
     """Sub-bin range / azimuth of one point target by matched filtering.
 
@@ -102,7 +95,7 @@ def run_demo(capture=None, out="sionna_mmir_demo", overwrite=False) -> dict:
     from ..plotting import save_ra_panels
     from ..processing.imaging import range_azimuth
     from ..processing.virtual_array import VirtualArray
-    from .commands import point_target_paths
+    from .commands import point_target_paths, strongest_return
 
     out = pathlib.Path(out)
     if out.exists() and not overwrite:
@@ -122,8 +115,8 @@ def run_demo(capture=None, out="sionna_mmir_demo", overwrite=False) -> dict:
         cap = load_capture(capture)
     radar = cap.radar
     ra_meas, ranges, az = range_azimuth(cap.adc, radar)
-    r_corner, az_corner, _ = _detect(ra_meas, ranges, az, 1.0, radar.max_range * 0.9)
-    r_leak, _, _ = _detect(ra_meas, ranges, az, 0.0, 0.5)
+    r_corner, az_corner, _ = strongest_return(ra_meas, ranges, az, 1.0, radar.max_range * 0.9)
+    r_leak, _, _ = strongest_return(ra_meas, ranges, az, 0.0, 0.5)
 
     # Re-synthesise: corner + leakage as paths with exact per-pair delays,
     # placed about the aperture's phase centre (where the angle FFT looks from).

@@ -47,7 +47,7 @@ def _shape_of(x) -> tuple:
     return tuple(shape)
 
 
-def _flat(x, n_target, shape, name, radar):
+def _flat(x, n_target, shape, name):
     """Differentiably broadcast ``x`` to a flat ``mi.Float`` of ``T*R*P`` entries."""
     import drjit as dr
     import mitsuba as mi
@@ -139,7 +139,7 @@ def synthesize_adc_drjit(radar: RadarConfig, a, tau, tau_rate=None):
     P = max(s[-1] for s in shapes)
     shape = (radar.num_tx, radar.num_rx, P)
     n = radar.num_tx * radar.num_rx * P
-    args = [_flat(x, n, shape, name, radar) for x, name in
+    args = [_flat(x, n, shape, name) for x, name in
             ((a_re, "a"), (a_im, "a"), (tau, "tau"), (tau_rate, "tau_rate"))]
     for x, name in zip(args[:3], ("a", "a", "tau")):
         if not np.all(np.isfinite(np.asarray(dr.detach(x)))):

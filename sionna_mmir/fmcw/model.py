@@ -73,34 +73,3 @@ def broadcast_paths(radar: RadarConfig, a, tau, tau_rate=None):
     tau_full = full(tau)
     rho_full = full(rho) if rho is not None else None
     return a_full, tau_full, rho_full, shape
-
-
-def phase_cycles(radar: RadarConfig, tau, rho=None):
-    """Phase at sample 0 and phase step per sample, in cycles.
-
-    Parameters
-    ----------
-    tau : float64 ``[n_tx, n_rx, P]`` delays [s]
-    rho : float64 ``[n_tx, n_rx, P]`` delay rates or ``None``
-
-    Returns
-    -------
-    c0 : float64 ``[n_tx, n_rx, L, P]`` phase of sample ``k = 0`` (mod 1) [cycles]
-    c1 : float64 ``[n_tx, n_rx, L, P]`` phase increment per sample (mod 1) [cycles]
-    tau_l : float64 ``[n_tx, n_rx, L, P]`` delay at each chirp start [s]
-
-    ``L = num_chirps`` with motion, ``1`` without (all chirps identical).
-    """
-    f0, S = radar.start_frequency, radar.slope
-    t0, dt = radar.adc_start_time, 1.0 / radar.sample_rate
-    if rho is None:
-        tau_l = tau[:, :, None, :]
-        c0 = (f0 + S * t0) * tau_l
-        c1 = S * dt * tau_l
-    else:
-        T = radar.chirp_start_times()  # [n_tx, L]
-        tau_l = tau[:, :, None, :] + rho[:, :, None, :] * T[:, None, :, None]
-        r = rho[:, :, None, :]
-        c0 = (f0 + S * t0) * tau_l + f0 * r * t0
-        c1 = dt * (S * tau_l + f0 * r)
-    return np.mod(c0, 1.0), np.mod(c1, 1.0), tau_l
