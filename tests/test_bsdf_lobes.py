@@ -248,3 +248,11 @@ def test_10_grad_mmwave_params():
     e1 = _grad_check(lambda s: mmwave.eval(wi, wo, mmwave.MMWaveParams(s, l0, 0.5, LAMBDA)), s0)
     e2 = _grad_check(lambda l: mmwave.eval(wi, wo, mmwave.MMWaveParams(s0, l, 0.5, LAMBDA)), l0)
     assert e1 < 0.02 and e2 < 0.02, (e1, e2)
+
+
+def test_11_grad_mmwave_blend_tau():
+    """KA/SPM blend tau: AD vs central differences (< 2 %)."""
+    wi, wo = _grad_dirs()
+    s0, l0 = 0.08 * LAMBDA, 3.0 * LAMBDA
+    e = _grad_check(lambda t: mmwave.eval(wi, wo, mmwave.MMWaveParams(s0, l0, t, LAMBDA)), 0.4)
+    assert e < 0.02, e

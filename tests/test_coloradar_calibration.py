@@ -39,23 +39,38 @@ def test_01_measured_coupling_is_removed_exactly(calib):
     assert np.abs(spec - ref).max() < 1e-3 * np.abs(ref).max()
 
 
-def test_02_phase_correction_is_unit_modulus_and_aligns_injected_errors(calib):
-    """Channels perturbed by the file's measured phases come back aligned (far-field target)."""
-    from sionna_mmir.captures.coloradar_calib import read_phase_frequency_calib
+def test_02_phase_frequency_correction_undoes_physical_channel_delays(calib, tmp_path):
+    """Each channel gets an extra physical delay and phase (through synthesize_adc).
+
+    A calibration file is written from those physical errors as a corner
+    capture would record them (plain-FFT peak bin ``S dtau N / fs`` and peak
+    phase ``2 pi (f0 + S t0) dtau + phi``); the correction read back from the
+    folder must align the channels with the error-free capture.
+    """
+    import json
+    import shutil
 
     d, radar = calib
-    cal = read_phase_frequency_calib(d / "cascade" / "phase_frequency_calib.txt")
-    a, tau, _ = point_target_paths(radar, [(1e4, 0.0, 0.0, 0.0)])   # far field, boresight
+    rng = np.random.default_rng(7)
+    dtau = rng.uniform(-40e-12, 40e-12, size=(radar.num_tx, radar.num_rx))   # ~ +/- 1.2 cm
+    phi = rng.uniform(-np.pi, np.pi, size=dtau.shape)
+    a, tau, _ = point_target_paths(radar, [(1e4, 0.0, 0.0, 0.0)])            # far field, boresight
     clean = synthesize_adc(radar, np.ones_like(a), tau)
-    err = (cal.phase / cal.phase[0, 0])
-    err = err / np.abs(err)
-    bins = cal.frequency_bins - cal.frequency_bins[0, 0]
-    n = np.arange(radar.num_samples)
-    ramp = np.exp(2j * np.pi * bins[..., None] / cal.num_samples * (radar.slope / cal.slope)
-                  * (cal.sample_rate / radar.sample_rate) * n)
-    dirty = clean * err[:, :, None, None] * ramp[:, :, None, :]
-    fixed = coloradar_phase_frequency_correct(dirty, radar, d, interp_factor=1)
+    dirty = synthesize_adc(radar, np.exp(1j * phi)[..., None], tau + dtau[..., None])
+    f_first = radar.start_frequency + radar.slope * radar.adc_start_time
+    bins = radar.slope * dtau * radar.num_samples / radar.sample_rate + 50.0
+    peaks = np.exp(1j * (2 * np.pi * f_first * dtau + phi))
+    cal_dir = tmp_path / "calib"
+    shutil.copytree(d, cal_dir)
+    doc = {"antennaCalib": {"numTx": radar.num_tx, "numRx": radar.num_rx,
+                            "frequencySlope": radar.slope, "samplingRate": radar.sample_rate,
+                            "frequencyCalibrationMatrix": bins.ravel().tolist(),
+                            "phaseCalibrationMatrix": np.stack([peaks.real, peaks.imag], -1).ravel().tolist()}}
+    (cal_dir / "cascade" / "phase_frequency_calib.txt").write_text(json.dumps(doc))
+    fixed = coloradar_phase_frequency_correct(dirty, radar, cal_dir, interp_factor=1)
     assert np.allclose(np.abs(fixed), np.abs(dirty), rtol=1e-5)
+    before = dirty * np.conj(clean)
     rel = fixed * np.conj(clean)
     rel = rel / rel[0, 0]
+    assert np.degrees(np.abs(np.angle(before / before[0, 0]))).max() > 30   # errors were real
     assert np.degrees(np.abs(np.angle(rel))).max() < 0.5

@@ -206,3 +206,30 @@ def test_12_out_of_range_faces_raise_naming_file(tmp_path):
         load_scene(path)
     with pytest.raises(InputValueError, match="<trimesh>.*out of range"):
         read_mesh(trimesh.Trimesh(vertices=PLANE_V, faces=[[0, 1, 9]], process=False))
+
+
+def test_13_normal_attribute_gradient_ad_vs_fd(scene):
+    """Interpolated shading normal at a hit: AD w.r.t. vertex normals vs central differences."""
+    obj = scene.mesh_objects["plane"]
+    base = obj.vertex_normals.numpy().copy()
+
+    def value(normals, grad=False):
+        obj.vertex_normals = mi.TensorXf(mi.Float(normals.ravel().astype(np.float32)), normals.shape)
+        if grad:
+            dr.enable_grad(obj.vertex_normals)
+        scene.sync()
+        si = scene.mi_scene.ray_intersect(_ray())
+        return si.shape.eval_attribute_3("vertex_mmir_normal", si)
+
+    n = value(base, grad=True)
+    dr.backward(n.x)
+    ad = dr.grad(obj.vertex_normals).numpy()[:, 0]
+    h = 1e-2
+    for v in range(4):
+        p, m = base.copy(), base.copy()
+        p[v, 0] += h
+        m[v, 0] -= h
+        fd = (float(value(p).x[0]) - float(value(m).x[0])) / (2 * h)
+        assert abs(ad[v] - fd) <= 0.02 * max(abs(fd), 1e-3), (v, ad[v], fd)
+    assert abs(ad.sum() - 1.0) < 1e-4          # barycentric weights of the hit triangle sum to 1
+    value(base)
