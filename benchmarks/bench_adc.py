@@ -7,6 +7,9 @@ x paths.  The NumPy reference is the package's reference twin
 measured in the same run on the same inputs; its Doppler case is only run up
 to 1e3 paths (it takes minutes beyond).
 
+A second table runs one static chirp side by side with Sionna RT's own
+``Paths.cfr`` (the same sum, ``conj`` convention) on the same paths.
+
 Run:  python benchmarks/bench_adc.py [--paths 1000 10000 100000] [--json out.json]
 """
 from __future__ import annotations
@@ -51,6 +54,40 @@ def run(paths=(1000, 10000, 100000), reference_limit=(10000, 1000), repeat=3):
     return rows
 
 
+def run_vs_sionna(paths=(1000, 10000), repeat=3):
+    """One static chirp, same a / tau: sionna_mmir vs Sionna RT's ``Paths.cfr``.
+
+    Sionna's method runs unmodified through :mod:`sionna_cfr`'s adapter
+    (Dr.Jit LLVM, warmed up first so JIT compilation is not timed).
+    """
+    import sionna_mmir
+    from sionna_cfr import sionna_beat_signal
+
+    sionna_mmir.init_backend()
+    radar = RadarConfig.mmwcas(num_chirps=1)
+    rng = np.random.default_rng(1)
+    rows = []
+    for P in paths:
+        shape = (radar.num_tx, radar.num_rx, P)
+        a = rng.normal(size=shape) + 1j * rng.normal(size=shape)
+        tau = rng.uniform(1e-9, 1e-7, size=shape)
+        sionna_beat_signal(radar, a, tau)                       # warm-up (JIT)
+        t_rt = _time(lambda: sionna_beat_signal(radar, a, tau), repeat)
+        t_mm = _time(lambda: synthesize_adc(radar, a, tau), repeat)
+        n = radar.num_tx * radar.num_rx * radar.num_samples * P
+        rows.append(dict(paths=P, sionna_s=t_rt, mmir_s=t_mm, ratio=t_mm / t_rt,
+                         mmir_rate=n / t_mm, sionna_rate=n / t_rt))
+    return rows
+
+
+def to_markdown_vs_sionna(rows):
+    out = ["| paths | sionna_mmir [s] | Sionna RT `Paths.cfr` [s] | time ratio mmIR / Sionna |",
+           "|---:|---:|---:|---:|"]
+    for r in rows:
+        out.append(f"| {r['paths']:.0e} | {r['mmir_s']:.3f} | {r['sionna_s']:.3f} | {r['ratio']:.2f} |")
+    return "\n".join(out)
+
+
 def to_markdown(rows):
     out = ["| paths | Doppler | sionna_mmir [s] | path-samples/s | NumPy reference [s] | path-samples/s | speed-up |",
            "|---:|:---:|---:|---:|---:|---:|---:|"]
@@ -69,10 +106,13 @@ def main(argv=None):
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     rows = run(tuple(args.paths))
+    vs = run_vs_sionna(tuple(p for p in args.paths if p <= 10000))
     print(to_markdown(rows))
+    print()
+    print(to_markdown_vs_sionna(vs))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump(rows, f, indent=1)
+            json.dump({"numpy": rows, "sionna": vs}, f, indent=1)
 
 
 if __name__ == "__main__":
