@@ -86,6 +86,7 @@ class RadarScene(Scene):
         super().__init__(mi_scene=mi_scene)
         self.frequency = frequency
         self.mesh_objects: dict[str, MeshObject] = objects
+        self.radar = radar
         pos = np.zeros(3) if radar is None else np.asarray(radar.position, dtype=float)
         ori = np.zeros(3) if radar is None else np.asarray(radar.orientation, dtype=float)
         self.position = _tensor(pos.reshape(3))

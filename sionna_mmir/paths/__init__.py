@@ -1,0 +1,8 @@
+"""Differentiable radar paths: ray generation, the Monte Carlo path solver, SMS.
+
+``solver``  :class:`RadarPathSolver`, a subclass of Sionna RT's ``PathSolver``
+``paths``   :class:`RadarPaths`, per (tx, rx, path) amplitudes and delays
+``sms``     specular manifold sampling (Newton walk + IFT gradients)
+
+Importing a submodule initialises the Mitsuba backend.
+"""
