@@ -29,10 +29,11 @@ The 2x2 Jacobian ``J = dC/d(u, v)`` is computed analytically
 Walk (wavefront, vectorised over N queries)
 -------------------------------------------
 1. *Seed projection.*  Rays are cast from ``a`` and from ``b`` towards the
-   seed; of the (up to) two hits the one nearer the seed starts the walk.  A
-   seed from a hit traced from either endpoint is thus reproduced exactly, and
-   an image-method point (which may lie off a curved surface) is snapped to the
-   visible surface next to it.
+   seed, and from the seed along ``+-h`` (half-vector at the seed); of the
+   hits the one nearest the seed starts the walk.  A seed from a hit traced
+   from either endpoint is thus reproduced exactly, and an image-method
+   point (which may lie off a curved surface, even beyond its silhouette) is
+   snapped to the surface next to it.
 2. *Newton step in the tangent plane.*  ``(du, dv) = -lambda J^-1 C`` gives the
    step ``dx = du e1 + dv e2`` in the plane of the current triangle (it may
    leave the triangle).  ``|dx|`` is clamped to ``step_limit`` (default: a
@@ -76,9 +77,11 @@ the detached solution with a detached Jacobian::
 
     (u*, v*) = (u0, v0) - detach(J)^-1 C(u0, v0; theta)
 
-Its value is ``(u0, v0)`` up to the (tiny, second order) Newton correction, and
-its derivative is exactly the IFT derivative above because ``u0, v0, J`` are
-constants.  ``x = x(u*, v*; theta)`` then picks up both the motion of the
+Its value is ``(u0, v0)`` plus the Newton correction ``-J^-1 C``, which is
+``O(tol)`` and only moves the point closer to the exact root; its derivative
+is exactly the IFT derivative above because ``u0, v0, J`` are constants (the
+expression is first-order exact: differentiating ``C(u*(theta), theta) = 0``
+gives the same linear system).  ``x = x(u*, v*; theta)`` then picks up both the motion of the
 triangle's vertices at fixed barycentrics and the sliding of the specular
 point on the triangle.
 
@@ -95,7 +98,7 @@ Mitsuba 3.9 / Dr.Jit 1.5 store ``mi.ShapePtr`` arrays as registry ids
 (``dr.reinterpret_array(mi.UInt32, ptr)`` gives them, 0 for null), and
 ``ptr == mi.ShapePtr(mesh)`` compares them lane by lane.  The solver maps the
 hit ``ShapePtr`` to the index of the object in ``list(scene.mesh_objects)``
-by that comparison (``_object_ids``); hits on shapes that are no RadarScene
+by that comparison (``_Tables.object_ids``); hits on shapes that are no RadarScene
 object count as misses.
 """
 from __future__ import annotations
@@ -321,14 +324,24 @@ def _cast(scene, tables, o, d, maxt, active):
 
 
 def _project_seed(scene, tables, a, b, seed):
-    """Start on the hit nearest the seed among rays a -> seed and b -> seed."""
+    """Snap seeds onto the mesh: the hit nearest the seed among four rays.
+
+    Rays ``a -> seed`` and ``b -> seed`` reproduce a seed traced from either
+    endpoint exactly; rays from the seed along ``+h`` and ``-h`` (``h`` the
+    half-vector of ``a`` and ``b`` seen from the seed, i.e. the normal a
+    reflector would need there) catch seeds off the surface that the endpoint
+    rays miss, e.g. image-method points near a silhouette.
+    """
+    wa, wb = dr.normalize(a - seed), dr.normalize(b - seed)
+    h = dr.normalize(wa + wb)
+    h = dr.select(dr.isfinite(h.x) & dr.isfinite(h.y) & dr.isfinite(h.z), h, mi.Vector3f(0, 0, 1))
     best = None
-    for src in (a, b):
-        d = seed - src
+    for src, d in ((a, seed - a), (b, seed - b), (seed, h), (seed, -h)):
         dist = dr.norm(d)
         ok = dist > 0
-        hit, obj, prim, uv, t = _cast(scene, tables, src, d / dist, dr.inf, ok)
-        gap = dr.select(hit, dr.abs(t - dist), dr.inf)
+        d = d / dist
+        hit, obj, prim, uv, t = _cast(scene, tables, src, d, dr.inf, ok)
+        gap = dr.select(hit, dr.norm(src + d * t - seed), dr.inf)
         if best is None:
             best = [hit, obj, prim, uv, gap]
         else:
@@ -361,7 +374,7 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
         raise InputValueError(f"max_iter must be >= 0, got {max_iter!r}")
     if not np.isfinite(float(tol)) or float(tol) <= 0:
         raise InputValueError(f"tol must be a positive finite number, got {tol!r}")
-    if step_limit is not None and isinstance(step_limit, (int, float)) and not float(step_limit) > 0:
+    if isinstance(step_limit, (int, float)) and not float(step_limit) > 0:
         raise InputValueError(f"step_limit must be > 0, got {step_limit!r}")
     pts = {"a": _as_point3f(a, "a"), "b": _as_point3f(b, "b"), "seed": _as_point3f(seed, "seed")}
     for name, p in pts.items():
