@@ -6,3 +6,6 @@
 
 Importing a submodule initialises the Mitsuba backend.
 """
+from .radar_paths import RadarPaths  # noqa: E402,F401
+from .render import render, to_numpy  # noqa: E402,F401
+from .solver import RadarPathSolver  # noqa: E402,F401

@@ -63,6 +63,36 @@ class Interaction:
     mat: list
 
 
+class Tape:
+    """Frozen detached values of a Monte Carlo estimator (record, then replay).
+
+    The estimator divides by sampling densities and makes discrete choices
+    that are *detached* from AD (pdfs, areas of hit triangles at sampling
+    time, Russian-roulette probabilities, visibility).  Recording them on the
+    first call and replaying them later keeps the estimator a smooth function
+    of the scene parameters -- exactly the function whose gradient AD computes
+    -- which is what a finite-difference check or a frozen-sample optimiser
+    needs.
+    """
+
+    def __init__(self, values: list | None = None):
+        self.replaying = values is not None
+        self.values = list(values) if values is not None else []
+        self._pos = 0
+
+    def freeze(self, x):
+        """Detached ``x`` on record; the recorded value on replay."""
+        if self.replaying:
+            if self._pos >= len(self.values):
+                raise RuntimeError("Tape exhausted: replay with the same solver options")
+            out = self.values[self._pos]
+            self._pos += 1
+            return out
+        out = dr.detach(x)
+        self.values.append(out)
+        return out
+
+
 class SceneGeometry:
     """Global (all objects concatenated) differentiable mesh arrays of a scene.
 
@@ -96,14 +126,28 @@ class SceneGeometry:
             table[sid] = i
         self._shape_table = mi.UInt32(table)
         self._face_offset = mi.UInt32(f_off[:-1].astype(np.uint32))
-        self.object_velocity = None
+        #: recorded hits (list) when recording, or a list to replay (popped in order)
+        self.record: list | None = None
+        self.replay: list | None = None
 
     # ------------------------------------------------------------------ tracing
     def trace(self, origin, direction, active=True):
         """Trace rays (no AD); returns ``(valid, obj, face, u, v)`` detached.
 
         ``origin`` ``mi.Point3f`` [m], ``direction`` ``mi.Vector3f`` (unit).
+        With :attr:`replay` set, returns the next recorded result instead of
+        tracing (frozen samples: the discrete path decisions of an earlier call).
         """
+        if self.replay is not None:
+            if not self.replay:
+                raise RuntimeError("SceneGeometry.trace: replay exhausted (different options?)")
+            return self.replay.pop(0)
+        out = self._trace(origin, direction, active)
+        if self.record is not None:
+            self.record.append(out)
+        return out
+
+    def _trace(self, origin, direction, active):
         with dr.suspend_grad():
             ray = mi.Ray3f(dr.detach(origin), dr.detach(direction))
             pi = self.scene.mi_scene.ray_intersect_preliminary(ray, coherent=False,
@@ -132,8 +176,12 @@ class SceneGeometry:
     def _vertex(self, arr, width, idx, k, active):
         return [dr.gather(mi.Float, arr, idx * width + c, active) for c in range(k)]
 
-    def interaction(self, valid, obj, face, u, v) -> Interaction:
-        """Rebuild the interaction inside AD from ``(face, u, v)``."""
+    def interaction(self, valid, obj, face, u, v, tape: Tape | None = None) -> Interaction:
+        """Rebuild the interaction inside AD from ``(face, u, v)``.
+
+        ``tape`` freezes the triangle area at sampling time (the denominator
+        of ``area_ratio``).
+        """
         i = [dr.gather(mi.UInt32, self.faces, face * 3 + c, valid) for c in range(3)]
         w0, w1, w2 = 1.0 - u - v, u, v
         P = [mi.Point3f(*self._vertex(self.positions, 3, i[c], 3, valid)) for c in range(3)]
@@ -145,6 +193,7 @@ class SceneGeometry:
         ng = cr / dr.maximum(area, 1e-20)
         n = dr.normalize(N[0] * w0 + N[1] * w1 + N[2] * w2)
         mat = [M[0][c] * w0 + M[1][c] * w1 + M[2][c] * w2 for c in range(6)]
-        ratio = area / dr.maximum(dr.detach(area), 1e-20)
+        area0 = tape.freeze(area) if tape is not None else dr.detach(area)
+        ratio = area / dr.maximum(area0, 1e-20)
         return Interaction(valid=valid, obj=obj, face=face, p=p, n=n, ng=ng,
                            area_ratio=ratio, mat=mat)

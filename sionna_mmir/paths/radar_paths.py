@@ -43,6 +43,8 @@ class RadarPaths:
     depth: np.ndarray
     num_candidates: int
     info: dict = field(default_factory=dict)
+    #: recorded discrete decisions, pass as ``samples=`` to replay them
+    samples: list | None = None
 
     @property
     def num_paths(self) -> int:

@@ -78,7 +78,7 @@ import numpy as np
 from ..errors import ConfigError, InputValueError
 from ..radio_materials.fresnel import SPEED_OF_LIGHT, complex_permittivity, slab_coefficients
 from ..utils.backend import init_backend
-from .geometry import SceneGeometry
+from .geometry import SceneGeometry, Tape
 from .polarization import Field, mirror, polarization_fractions, reflect_field, transverse
 from .pose import Pose
 from .radar_paths import RadarPaths
@@ -150,6 +150,10 @@ class RadarPathSolver(PathSolver):
     velocities           ``{object: (vx, vy, vz)}`` [m/s] (scene frame)
     radar_velocity       ``(vx, vy, vz)`` [m/s] of the radar (scene frame)
     check_inside         raise if the radar sits inside closed geometry
+    samples              ``paths.samples`` of an earlier call: replay its
+                         discrete decisions (hit triangles, barycentrics)
+                         instead of tracing -- frozen samples, e.g. for
+                         finite-difference checks of the AD gradients
     returns              :class:`~sionna_mmir.paths.RadarPaths`
     ===================  =====================================================
     """
@@ -162,10 +166,16 @@ class RadarPathSolver(PathSolver):
                  seed: int = 0, cone_angle_deg: float = 90.0, coherent: bool = True,
                  scattering: bool = True, tx_pattern="cos", rx_pattern="cos",
                  rr_depth: int = 2, velocities: dict | None = None, radar_velocity=None,
-                 check_inside: bool = True) -> RadarPaths:
+                 check_inside: bool = True, samples=None) -> RadarPaths:
         radar = _radar_of(scene, radar)
         self._check_args(scene, num_rays, max_depth, seed, cone_angle_deg, velocities)
         geo = SceneGeometry(scene)
+        if samples is not None:
+            geo.replay = list(samples[0])
+            tape = Tape(samples[1])
+        else:
+            geo.record = []
+            tape = Tape()
         pose = Pose.from_tensors(scene.position, scene.orientation)
         ptx, prx = _patterns(tx_pattern, rx_pattern, radar)
         wavelength = SPEED_OF_LIGHT / float(dr.detach(scene.frequency)[0]) \
@@ -176,7 +186,7 @@ class RadarPathSolver(PathSolver):
         c_w = pose.point(centre_local)
         tx_w = pose.point(radar.tx_positions)
         rx_w = pose.point(radar.rx_positions)
-        if check_inside:
+        if check_inside and samples is None:
             self._check_inside(geo, dr.detach(c_w))
 
         # -------- candidate rays (shared seed; no AD)
@@ -200,19 +210,18 @@ class RadarPathSolver(PathSolver):
         rng = mi.PCG32(size=K, initstate=int(seed) + 0x9E3779B9)
 
         # -------- path state (width K)
-        it = geo.interaction(valid, obj, face, u, v)
+        it = geo.interaction(valid, obj, face, u, v, tape)
         x1 = it.p
         cw_k = dr.zeros(mi.Point3f, K) + c_w
         k0 = dr.normalize(x1 - cw_k)
-        L0_det = dr.detach(dr.norm(x1 - cw_k))
-        e_r = pose.to_scene(prx.polarization(dr.detach(pose.to_radar(k0))))
+        L0_det = tape.freeze(dr.norm(x1 - cw_k))
+        e_r = pose.to_scene(prx.polarization(pose.to_radar(k0)))
         E = Field(transverse(e_r, k0))
         inv_p = dr.ones(mi.Float, K)            # 1 / prob(coherent chain so far)
         coh = dr.full(mi.Bool, True, K)         # still a specular (coherent) chain
         beta = dr.zeros(mi.Float, K)            # incoherent throughput (* L0^2)
         p_area = dr.zeros(mi.Float, K)          # area density of the current x (coherent)
         chain = dr.zeros(mi.Float, K)           # x_1 -> x_l length (AD)
-        unf_det = L0_det                        # unfolded length from the centre (detached)
         prev_p = cw_k
         pending = None                          # deferred BSDF-sampling weight
         rate_chain = dr.zeros(mi.Float, K)
@@ -223,9 +232,12 @@ class RadarPathSolver(PathSolver):
 
         outs = []
         for depth in range(1, int(max_depth) + 1):
-            x, n_sh = it.p, it.n
+            # dead lanes get a harmless dummy point 1 m ahead (no NaN anywhere)
+            x = dr.select(it.valid, it.p, prev_p + mi.Vector3f(1.0, 0.0, 0.0))
+            n_sh = dr.select(it.valid, it.n, mi.Vector3f(-1.0, 0.0, 0.0))
+            it.ng = dr.select(it.valid, it.ng, mi.Vector3f(-1.0, 0.0, 0.0))
             k_in = dr.normalize(x - prev_p)
-            seg = dr.norm(x - prev_p)
+            seg = dr.maximum(dr.norm(x - prev_p), 1e-6)
             if depth > 1:
                 chain = chain + seg
             n = dr.select(dr.dot(k_in, n_sh) > 0, -n_sh, n_sh)
@@ -233,14 +245,14 @@ class RadarPathSolver(PathSolver):
             front = dr.dot(k_in, it.ng) < 0
             ng = dr.select(front, it.ng, -it.ng)
             if depth == 1:
-                p_area = dr.detach(first_pdf * cos_in / dr.square(L0_det))
+                p_area = tape.freeze(first_pdf * dr.abs(dr.dot(k_in, ng)) / dr.square(L0_det))
             # deferred weight of a BSDF-sampled direction that led here (area measure)
             if pending is not None:
                 pw, pf_n, pf_params, pf_wi, pf_pdf, pf_mask = pending
                 wo_prev = mi.Frame3f(pf_n).to_local(k_in)
                 f_prev = pf_params[1] * mmwave.eval(pf_wi, wo_prev, pf_params[0])
-                g_ad = dr.maximum(wo_prev.z, 0.0) * cos_in / dr.square(seg)
-                g_det = dr.detach(pf_pdf * cos_in / dr.square(seg))
+                g_ad = dr.maximum(wo_prev.z, 0.0) * dr.abs(dr.dot(k_in, ng)) / dr.square(seg)
+                g_det = tape.freeze(pf_pdf * dr.abs(dr.dot(k_in, ng)) / dr.square(seg))
                 w = f_prev * g_ad / dr.maximum(g_det, 1e-30) * it.area_ratio * pw
                 beta = dr.select(pf_mask, beta * w, beta)
             # materials at x
@@ -255,9 +267,9 @@ class RadarPathSolver(PathSolver):
             k_t = to_c / d_c
             cos_t = dr.dot(n, k_t)
             ok = it.valid & (cos_t > 0) & (dr.dot(ng, k_t) > 0) & (cos_in > 0)
-            ok &= geo.visible(x + ng * RAY_EPSILON, c_w, ok)
+            ok &= tape.freeze(geo.visible(x + ng * RAY_EPSILON, c_w, ok))
             cos_t = dr.maximum(cos_t, 0.0)
-            e_t = transverse(pose.to_scene(ptx.polarization(dr.detach(pose.to_radar(-k_t)))), k_t)
+            e_t = transverse(pose.to_scene(ptx.polarization(pose.to_radar(-k_t))), k_t)
             C_re = dr.zeros(mi.Float, K)
             C_im = dr.zeros(mi.Float, K)
             if coherent:
@@ -281,7 +293,7 @@ class RadarPathSolver(PathSolver):
                 base = dr.select(coh, E.power() * inv_p * cos_in * it.area_ratio
                                  / (dr.maximum(p_area, 1e-30) * N), beta)
                 P = dr.square(wavelength / (4.0 * math.pi)) * f_sc * cos_t * base
-                amp = dr.select(ok, dr.safe_sqrt(P), 0.0)
+                amp = dr.select(ok, dr.sqrt(dr.maximum(P, 1e-36)), 0.0)
                 phase = 2.0 * math.pi * rng.next_float32()
                 C_re += amp * dr.cos(phase)
                 C_im += amp * dr.sin(phase)
@@ -292,7 +304,7 @@ class RadarPathSolver(PathSolver):
                 break
             # ---- continuation: mirror (coherent) or BSDF sample (incoherent)
             eta_in = dr.exp(-dr.square(2.0 * k_wave * sigma_h * cos_in))
-            p_spec = dr.detach(eta_in) if scattering else dr.ones(mi.Float, K)
+            p_spec = tape.freeze(eta_in) if scattering else dr.ones(mi.Float, K)
             if not coherent:
                 p_spec = dr.zeros(mi.Float, K)
             u_ev = rng.next_float32()
@@ -313,7 +325,8 @@ class RadarPathSolver(PathSolver):
                                             mi.Point2f(rng.next_float32(), rng.next_float32()),
                                             params_in)
                 k_sc = frame.to_world(wo_s)
-                ok_s = scat & (wo_s.z > 1e-4) & (pdf_s > 0)
+                ok_s = tape.freeze(scat & (wo_s.z > 1e-4) & (pdf_s > 0))
+                pdf_s = tape.freeze(pdf_s)
             # become incoherent: fold the coherent chain's power into beta
             base_coh = E.power() * inv_p * cos_in * it.area_ratio / (dr.maximum(p_area, 1e-30) * N)
             beta = dr.select(scat & coh, base_coh, beta)
@@ -326,7 +339,7 @@ class RadarPathSolver(PathSolver):
             # Russian roulette on the power-carrying paths
             alive = spec | ok_s
             if depth + 1 > rr_depth:
-                q = dr.detach(dr.clip(dr.select(coh, pol_pow, dr.minimum(beta * 0 + 0.5, 1.0)), 0.1, 1.0))
+                q = tape.freeze(dr.clip(dr.select(coh, pol_pow, 0.5), 0.1, 1.0))
                 survive = rng.next_float32() < q
                 alive &= survive
                 inv_p = dr.select(coh, inv_p / q, inv_p)
@@ -339,17 +352,18 @@ class RadarPathSolver(PathSolver):
                 v2, ob2, fa2, uu, vv = geo.trace(o2, dr.detach(k_next), alive)
             # motion along the chain: vertex x moving with v contributes v.(u_in + u_out)
             rate_chain = rate_chain + self._vertex_rate(vel, it.obj, k_in, -k_next)
-            unf_det = unf_det + dr.detach(dr.norm(x - prev_p)) * 0.0
             prev_p = x
-            it = geo.interaction(v2, ob2, fa2, uu, vv)
+            it = geo.interaction(v2, ob2, fa2, uu, vv, tape)
             # area density of the next point for coherent chains: p_A = rho cos / L_unf^2
-            L_unf = dr.detach(L0_det + chain + dr.norm(it.p - x))
-            cos_next = dr.detach(dr.abs(dr.dot(dr.normalize(it.p - x), it.n)))
+            L_unf = tape.freeze(L0_det + chain + dr.norm(it.p - x))
+            cos_next = tape.freeze(dr.select(v2, dr.abs(dr.dot(dr.normalize(it.p - x), it.ng)), 0.0))
             p_area = dr.select(coh, first_pdf * cos_next / dr.square(L_unf), p_area)
             it.valid = it.valid & v2
 
-        return self._assemble(outs, radar, pose, geo, ptx, prx, tx_w, rx_w, x1, N, K,
-                              velocities is not None or radar_velocity is not None)
+        paths = self._assemble(outs, radar, pose, geo, ptx, prx, tx_w, rx_w, x1, N, K,
+                               velocities is not None or radar_velocity is not None)
+        paths.samples = samples if samples is not None else (geo.record, tape.values)
+        return paths
 
     # --------------------------------------------------------------- internals
     @staticmethod
@@ -378,7 +392,7 @@ class RadarPathSolver(PathSolver):
         d = mi.Vector3f(mi.Float(dirs[:, 0]), mi.Float(dirs[:, 1]), mi.Float(dirs[:, 2]))
         o = dr.zeros(mi.Point3f, n) + c
         with dr.suspend_grad():
-            valid, obj, face, u, v = geo.trace(o, d)
+            valid, obj, face, u, v = geo._trace(o, d, True)
             it = geo.interaction(valid, obj, face, u, v)
             back = valid & (dr.dot(it.ng, d) > 0)
         if bool(dr.all(back)):
@@ -435,13 +449,13 @@ class RadarPathSolver(PathSolver):
         t_idx, p_t = ti // P, ti % P
         txp = _gather3(tx_w, t_idx)
         xp = _gather3(X, p_t)
-        dt = dr.norm(xp - txp)
+        dt = dr.maximum(dr.norm(xp - txp), 1e-6)
         g_t = dr.sqrt(ptx.gain(pose.to_radar((xp - txp) / dt), t_idx)) / dt
         ri = dr.arange(mi.UInt32, R * P)
         r_idx, p_r = ri // P, ri % P
         rxp = _gather3(rx_w, r_idx)
         x1p = _gather3(X1, p_r)
-        d1 = dr.norm(x1p - rxp)
+        d1 = dr.maximum(dr.norm(x1p - rxp), 1e-6)
         L = d1 + dr.gather(mi.Float, chain, p_r)
         g_r = dr.sqrt(prx.gain(pose.to_radar((x1p - rxp) / d1), r_idx)) / L
         # full [T, R, P]
