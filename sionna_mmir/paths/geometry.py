@@ -130,6 +130,35 @@ class SceneGeometry:
         self.record: list | None = None
         self.replay: list | None = None
 
+    def validate(self) -> None:
+        """Raise ``InputValueError`` for NaN/Inf tensors or unphysical materials.
+
+        Bounds: ``eps' >= 1``, ``eps'' >= 0``, ``sigma_h >= 0``, ``l_c > 0``,
+        ``0 <= tau <= 1``, ``d >= 0``; shading normals must be non-zero.
+        """
+        from ..errors import InputValueError
+
+        for name in self.names:
+            obj = self.scene.mesh_objects[name]
+            for key in ("vertex_positions", "vertex_normals", "vertex_materials"):
+                a = np.asarray(dr.detach(getattr(obj, key)))
+                if not np.isfinite(a).all():
+                    bad = np.flatnonzero(~np.isfinite(a).all(axis=-1))[:5].tolist()
+                    raise InputValueError(f"object {name!r}: {key} holds NaN/Inf (vertices {bad})")
+            n = np.asarray(dr.detach(obj.vertex_normals))[np.unique(obj.faces)]
+            if (np.linalg.norm(n, axis=1) < 1e-12).any():
+                raise InputValueError(f"object {name!r}: zero-length vertex normals")
+            m = np.asarray(dr.detach(obj.vertex_materials))
+            checks = ((m[:, 0] < 1.0, "eps_real < 1"), (m[:, 1] < 0.0, "eps_imag < 0"),
+                      (m[:, 2] < 0.0, "sigma_h < 0"), (m[:, 3] <= 0.0, "l_c <= 0"),
+                      ((m[:, 4] < 0.0) | (m[:, 4] > 1.0), "tau outside [0, 1]"),
+                      (m[:, 5] < 0.0, "thickness d < 0"))
+            for mask, what in checks:
+                if mask.any():
+                    raise InputValueError(f"object {name!r}: vertex materials out of physical "
+                                          f"bounds ({what}) at vertices "
+                                          f"{np.flatnonzero(mask)[:5].tolist()}")
+
     # ------------------------------------------------------------------ tracing
     def trace(self, origin, direction, active=True):
         """Trace rays (no AD); returns ``(valid, obj, face, u, v)`` detached.

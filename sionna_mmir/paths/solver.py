@@ -170,6 +170,7 @@ class RadarPathSolver(PathSolver):
         radar = _radar_of(scene, radar)
         self._check_args(scene, num_rays, max_depth, seed, cone_angle_deg, velocities)
         geo = SceneGeometry(scene)
+        geo.validate()
         if samples is not None:
             geo.replay = list(samples[0])
             tape = Tape(samples[1])

@@ -156,7 +156,8 @@ def _radio_material(material: str, frequency: float) -> RadioMaterial:
 
 
 def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict | None = None,
-               radar=None, drop_degenerate: bool = False) -> RadarScene:
+               radar=None, drop_degenerate: bool = False,
+               allow_out_of_band: bool = False) -> RadarScene:
     """Load triangle meshes into a :class:`RadarScene`.
 
     ===============  =====================================================
@@ -167,6 +168,9 @@ def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict 
                      ``"concrete"`` for every object)
     radar            optional ``RadarConfig`` (initial pose)
     drop_degenerate  remove triangles < 1e-12 m^2 instead of raising
+    allow_out_of_band  use a material outside its ITU-R P.2040 frequency
+                     range (extrapolated); by default that raises
+                     ``ConfigError`` naming the material and its bands
     returns          :class:`RadarScene`
     ===============  =====================================================
 
@@ -193,8 +197,9 @@ def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict 
             raise InputValueError(f"load_scene: object name {name!r} must be a non-empty str without '.'")
         data: TriMeshData = read_mesh(src, drop_degenerate=drop_degenerate)
         mat_name = materials.get(name, "concrete")
-        vparams = default_vertex_parameters(mat_name, frequency, allow_out_of_band=True)
-        key = itu_material(mat_name, frequency, allow_out_of_band=True).name
+        vparams = default_vertex_parameters(mat_name, frequency,
+                                            allow_out_of_band=allow_out_of_band)
+        key = itu_material(mat_name, frequency, allow_out_of_band=allow_out_of_band).name
         if key not in bsdfs:
             bsdfs[key] = _radio_material(mat_name, frequency)
         scene_dict[name] = to_mitsuba_mesh(data, name, bsdfs[key])

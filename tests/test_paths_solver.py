@@ -1,0 +1,243 @@
+"""RadarPathSolver against closed forms: RCS, MIMO coherence, reciprocity, Doppler, bad input.
+
+References (independent of the code):
+
+* flat plate, normal incidence, far field: ``sigma = 4 pi A^2 / lambda^2``
+  (physical optics; Knott, Shaeffer & Tuley, *Radar Cross Section*, Table 6.1)
+* triangular trihedral of edge ``a`` on its symmetry axis:
+  ``sigma = 4 pi a^4 / (3 lambda^2)`` (same table)
+* radar equation ``|a|^2 = G_t G_r lambda^2 sigma / ((4 pi)^3 R^4)``
+* point-target azimuth as seen from the aperture phase centre
+* monostatic delay rate of a target receding at ``v``: ``2 v / c``
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import trimesh
+
+import sionna_mmir  # noqa: F401
+from sionna_mmir.errors import ConfigError, InputValueError
+from sionna_mmir.radar import RadarConfig
+from sionna_mmir.scene import load_scene
+
+from helpers import aperture_centre
+
+from sionna_mmir.paths import RadarPathSolver, render, to_numpy  # noqa: E402
+from sionna_mmir.processing.imaging import range_azimuth  # noqa: E402
+
+C = 299_792_458.0
+F0 = 77e9
+LAM = C / F0
+
+
+def _square(centre, size, subdiv=3):
+    """Square plate in the y-z plane facing -x (towards the radar)."""
+    h = size / 2
+    v = np.array([[0, -h, -h], [0, h, -h], [0, h, h], [0, -h, h]], float) + centre
+    m = trimesh.Trimesh(v, [[0, 2, 1], [0, 3, 2]], process=False)
+    for _ in range(subdiv):
+        m = m.subdivide()
+    return m
+
+
+def _coherent_sum(paths, f=F0):
+    a, tau, _ = paths.numpy()
+    return (a * np.exp(2j * np.pi * f * tau)).sum(axis=2)
+
+
+def _rcs_dbsm(value, R, gain=1.0):
+    return 10 * np.log10(np.abs(value) ** 2 * (4 * np.pi) ** 3 * R ** 4 / (LAM ** 2 * gain ** 2))
+
+
+def test_01_pec_plate_rcs_matches_physical_optics():
+    a, R = 0.1, 20.0          # far field: 2 D^2 / lambda = 10 m < R
+    scene = load_scene({"plate": _square([R, 0, 0], a)}, materials={"plate": "metal"},
+                       radar=RadarConfig.dense(1, 1))
+    paths = RadarPathSolver()(scene, num_rays=100_000, max_depth=1, cone_angle_deg=0.5,
+                              tx_pattern="iso", rx_pattern="iso", seed=1)
+    got = _rcs_dbsm(_coherent_sum(paths)[0, 0], R)
+    expected = 10 * np.log10(4 * np.pi * a ** 4 / LAM ** 2)
+    assert abs(got - expected) < 1.0, (got, expected)
+
+
+def test_02_trihedral_peak_rcs():
+    a, R = 0.15, 30.0
+    axis = np.ones(3) / np.sqrt(3)
+    radar = RadarConfig.dense(1, 1, position=tuple(R * axis),
+                              orientation=(np.radians(-135.0), np.arcsin(1 / np.sqrt(3)), 0.0))
+    V = np.array([[0, 0, 0], [a, 0, 0], [0, a, 0], [0, 0, a]], float)
+    # one mesh, faces not sharing vertices across the creases (flat shading normals)
+    faces = [trimesh.Trimesh(V, [f], process=False).subdivide().subdivide()
+             for f in ([0, 1, 2], [0, 2, 3], [0, 3, 1])]
+    scene = load_scene({"trihedral": trimesh.util.concatenate(faces)},
+                       materials={"trihedral": "metal"}, radar=radar)
+    paths = RadarPathSolver()(scene, num_rays=100_000, max_depth=3, cone_angle_deg=0.25,
+                              tx_pattern="iso", rx_pattern="iso", seed=2)
+    got = _rcs_dbsm(_coherent_sum(paths)[0, 0], R)
+    expected = 10 * np.log10(4 * np.pi * a ** 4 / (3 * LAM ** 2))
+    assert abs(got - expected) < 2.0, (got, expected)
+    # the triple bounce carries it: single-bounce alone is far below
+    K = paths.info["hits"]
+    a_np, tau, _ = paths.numpy()
+    one = (a_np[0, 0, :K] * np.exp(2j * np.pi * F0 * tau[0, 0, :K])).sum()
+    assert _rcs_dbsm(one, R) < expected - 15
+
+
+def test_03_monostatic_plate_power_follows_radar_equation_with_patterns():
+    """cos^q element gains enter as G_t G_r at the target direction."""
+    from sionna_mmir.radio_devices import CosinePowerPattern
+
+    a, R, az = 0.1, 20.0, np.radians(10.0)
+    centre = R * np.array([np.cos(az), np.sin(az), 0.0])
+    plate = _square([0, 0, 0], a)
+    plate.apply_transform(trimesh.transformations.rotation_matrix(az, [0, 0, 1]))
+    plate.apply_translation(centre)
+    scene = load_scene({"plate": plate}, materials={"plate": "metal"}, radar=RadarConfig.dense(1, 1))
+    pat = CosinePowerPattern(q_az=2.0, q_el=10.0)
+    paths = RadarPathSolver()(scene, num_rays=100_000, max_depth=1, cone_angle_deg=11.0,
+                              tx_pattern=pat, rx_pattern=pat, seed=3)
+    g = float(pat.gain_np(np.array([np.cos(az), np.sin(az), 0.0])))
+    got = _rcs_dbsm(_coherent_sum(paths)[0, 0], R, gain=g)
+    assert abs(got - 10 * np.log10(4 * np.pi * a ** 4 / LAM ** 2)) < 1.0
+
+
+def test_04_reciprocity_swapping_tx_and_rx_arrays_transposes_the_channel():
+    base = RadarConfig.awr1843()
+    swapped = dataclasses.replace(base, tx_positions=base.rx_positions[:3].copy(),
+                                  rx_positions=np.vstack([base.tx_positions, [[0, 0.01, 0]]]),
+                                  tdm_order=(0, 1, 2))
+    orig = dataclasses.replace(base, tx_positions=swapped.rx_positions.copy(),
+                               rx_positions=swapped.tx_positions.copy(), tdm_order=(0, 1, 2, 3))
+    wall = _square([2.5, 0.2, 0.0], 1.0)
+    wall.apply_transform(trimesh.transformations.rotation_matrix(0.2, [0, 0, 1], point=[2.5, 0.2, 0]))
+    h = []
+    for radar in (orig, swapped):
+        scene = load_scene({"wall": wall}, radar=radar)
+        p = RadarPathSolver()(scene, num_rays=5000, max_depth=2, seed=4)
+        h.append(_coherent_sum(p))
+    np.testing.assert_allclose(h[0], h[1].T, rtol=2e-3, atol=1e-3 * np.abs(h[0]).max())
+
+
+@pytest.fixture(scope="module")
+def cascade_target():
+    radar = RadarConfig.mmwcas(num_chirps=1)
+    az_true, R = np.radians(20.0), 4.0
+    centre = R * np.array([np.cos(az_true), np.sin(az_true), 0.0])
+    plate = _square([0, 0, 0], 0.06, subdiv=2)
+    plate.apply_transform(trimesh.transformations.rotation_matrix(az_true, [0, 0, 1]))
+    plate.apply_translation(centre)
+    scene = load_scene({"target": plate}, materials={"target": "metal"}, radar=radar)
+    return scene, radar, centre
+
+
+def test_05_mimo_coherence_small_scatterer_at_true_azimuth(cascade_target):
+    scene, radar, centre = cascade_target
+    adc = to_numpy(render(scene, num_rays=150_000, max_depth=1, cone_angle_deg=24.0, seed=5))
+    ra, ranges, az = range_azimuth(adc, radar)
+    r_i, a_i = np.unravel_index(np.argmax(ra), ra.shape)
+    rel = centre - aperture_centre(radar)
+    az_expected = np.degrees(np.arctan2(rel[1], rel[0]))
+    assert abs(np.degrees(az[a_i]) - az_expected) < 0.5, (np.degrees(az[a_i]), az_expected)
+    assert abs(ranges[r_i] - np.linalg.norm(rel)) < 2 * radar.range_resolution
+
+
+def test_06_same_seed_gives_bit_identical_adc(cascade_target):
+    scene, radar, _ = cascade_target
+    opts = dict(num_rays=20_000, max_depth=2, cone_angle_deg=24.0, seed=11)
+    a = to_numpy(render(scene, **opts))
+    b = to_numpy(render(scene, **opts))
+    c = to_numpy(render(scene, **dict(opts, seed=12)))
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_07_moving_target_delay_rate_and_doppler():
+    v = 1.5                       # m/s receding along +x
+    R = 3.0
+    radar = RadarConfig.awr1843(num_chirps=32)
+    scene = load_scene({"plate": _square([R, 0, 0], 0.2)}, materials={"plate": "metal"}, radar=radar)
+    paths = RadarPathSolver()(scene, num_rays=20_000, max_depth=1, cone_angle_deg=3.0,
+                              velocities={"plate": (v, 0.0, 0.0)}, seed=6)
+    _, _, rate = paths.numpy()
+    w = np.abs(paths.numpy()[0])
+    mean_rate = float((rate * w).sum() / w.sum())
+    assert abs(mean_rate - 2 * v / C) < 0.01 * 2 * v / C
+    from sionna_mmir.processing.imaging import range_doppler
+
+    rd, ranges, vels = range_doppler(to_numpy(paths.adc(radar)), radar)[:3]
+    _, d_i = np.unravel_index(np.argmax(rd), rd.shape)
+    assert abs(abs(vels[d_i]) - v) <= radar.max_velocity / radar.num_chirps * 1.01
+
+
+# ------------------------------------------------------------------ bad input
+def test_08_radar_inside_closed_geometry_raises():
+    box = trimesh.creation.box((2.0, 2.0, 2.0))
+    scene = load_scene({"box": box}, radar=RadarConfig.dense(1, 1))
+    with pytest.raises(InputValueError, match="inside closed geometry"):
+        RadarPathSolver()(scene, num_rays=100)
+
+
+def test_09_out_of_band_material_raises_unless_allowed():
+    plate = _square([2, 0, 0], 0.5, subdiv=0)
+    with pytest.raises(ConfigError, match="marble"):
+        load_scene({"p": plate}, materials={"p": "marble"})
+    load_scene({"p": plate}, materials={"p": "marble"}, allow_out_of_band=True)
+
+
+def test_10_nan_and_unphysical_scene_tensors_raise():
+    import mitsuba as mi
+
+    scene = load_scene({"p": _square([2, 0, 0], 0.5, subdiv=0)}, radar=RadarConfig.dense(1, 1))
+    obj = scene.mesh_objects["p"]
+    good = np.array(obj.vertex_materials)
+    bad = good.copy()
+    bad[1, 2] = -1e-3
+    obj.vertex_materials = mi.TensorXf(bad.astype(np.float32))
+    with pytest.raises(InputValueError, match="sigma_h < 0"):
+        RadarPathSolver()(scene, num_rays=100)
+    bad = good.copy()
+    bad[0, 0] = np.nan
+    obj.vertex_materials = mi.TensorXf(bad.astype(np.float32))
+    with pytest.raises(InputValueError, match="NaN"):
+        RadarPathSolver()(scene, num_rays=100)
+    obj.vertex_materials = mi.TensorXf(good.astype(np.float32))
+    pos = np.array(obj.vertex_positions)
+    pos[2, 1] = np.inf
+    obj.vertex_positions = mi.TensorXf(pos.astype(np.float32))
+    with pytest.raises(InputValueError, match="vertex_positions"):
+        RadarPathSolver()(scene, num_rays=100)
+
+
+def test_11_bad_solver_options_raise():
+    scene = load_scene({"p": _square([2, 0, 0], 0.5, subdiv=0)}, radar=RadarConfig.dense(1, 1))
+    for kw in ({"num_rays": 0}, {"max_depth": 0}, {"seed": -1}, {"cone_angle_deg": 120},
+               {"velocities": {"nope": (1, 0, 0)}}):
+        with pytest.raises(ConfigError):
+            RadarPathSolver()(scene, **kw)
+    with pytest.raises(ConfigError, match="no radar"):
+        RadarPathSolver()(load_scene({"p": _square([2, 0, 0], 0.5, subdiv=0)}))
+
+
+def test_12_empty_degenerate_and_nan_meshes_raise(tmp_path):
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int))
+    with pytest.raises(InputValueError, match="empty"):
+        load_scene({"e": empty})
+    degenerate = trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), [[0, 1, 2]],
+                                 process=False)
+    with pytest.raises(InputValueError, match="degenerate"):
+        load_scene({"d": degenerate})
+    nan = trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [0, np.nan, 0.0]]), [[0, 1, 2]],
+                          process=False)
+    with pytest.raises(InputValueError, match="NaN"):
+        load_scene({"n": nan})
+
+
+def test_13_no_hits_gives_empty_paths_and_zero_adc():
+    radar = RadarConfig.dense(1, 1)
+    scene = load_scene({"behind": _square([-3, 0, 0], 0.5, subdiv=0)}, radar=radar)
+    paths = RadarPathSolver()(scene, num_rays=1000)
+    assert paths.num_paths == 0
+    assert not np.any(to_numpy(paths.adc(radar)))
