@@ -2,12 +2,17 @@
 
 Signal path and where each stage lives::
 
-    radar/        RadarConfig: waveform, antenna layout, pose
-    fmcw/         per-path amplitudes + delays -> raw complex ADC
-    processing/   range / Doppler / angle FFTs, virtual array, calibration
-    captures/     Capture container, HDF5, TI .mat, ColoRadar, DCA1000 readers
-    metrics/      the paper's Table 2 metrics on RA maps and ADC
-    cli/          the ``sionna-mmir`` command line
+    radar/           RadarConfig: waveform, antenna layout, pose
+    scene/           RadarScene (a sionna.rt.Scene), meshes, diffracting edges
+    radio_materials/ ITU-R P.2040 table, Fresnel / slab coefficients
+    radio_devices/   learnable element beam patterns
+    bsdf/            mmIR BSDF lobes (GGX, vMF, Lambertian) and FSD diffraction
+    paths/           RadarPathSolver (a sionna.rt.PathSolver), SMS, render()
+    fmcw/            per-path amplitudes + delays -> raw complex ADC
+    processing/      range / Doppler / angle FFTs, virtual array, calibration
+    captures/        Capture container, HDF5, TI .mat, ColoRadar, DCA1000 readers
+    metrics/         the paper's Table 2 metrics on RA maps and ADC
+    cli/             the ``sionna-mmir`` command line
 
 Importing the package configures Dr.Jit's LLVM backend (see
 :mod:`sionna_mmir.utils.backend`); Mitsuba itself is imported lazily, on the
@@ -34,6 +39,11 @@ _LAZY = {
     "range_azimuth_elevation": ("sionna_mmir.processing.imaging", "range_azimuth_elevation"),
     "metrics": ("sionna_mmir.metrics", None),
     "init_backend": ("sionna_mmir.utils.backend", "init_backend"),
+    "load_scene": ("sionna_mmir.scene.scene", "load_scene"),
+    "RadarScene": ("sionna_mmir.scene.scene", "RadarScene"),
+    "RadarPathSolver": ("sionna_mmir.paths.solver", "RadarPathSolver"),
+    "RadarPaths": ("sionna_mmir.paths.radar_paths", "RadarPaths"),
+    "render": ("sionna_mmir.paths.render", "render"),
 }
 
 __all__ = sorted(_LAZY)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from . import render_cmd
+
 EXIT_BAD_INPUT = 2
 
 
@@ -62,6 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="complex white noise power relative to a unit target [dB]")
     p.add_argument("--output", required=True)
     p.add_argument("--overwrite", action="store_true")
+
+    render_cmd.add_parser(sub)
     return parser
 
 
@@ -74,7 +78,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     handlers = {"demo": commands.cmd_demo, "info": commands.cmd_info,
                 "convert": commands.cmd_convert, "ra": commands.cmd_ra,
-                "synth": commands.cmd_synth}
+                "synth": commands.cmd_synth, "render": render_cmd.cmd_render}
     try:
         return int(handlers[args.command](args) or 0)
     except (SionnaMMIRError, FileNotFoundError, FileExistsError, IsADirectoryError,

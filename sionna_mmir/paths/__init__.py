@@ -9,3 +9,5 @@ Importing a submodule initialises the Mitsuba backend.
 from .radar_paths import RadarPaths  # noqa: E402,F401
 from .render import render, to_numpy  # noqa: E402,F401
 from .solver import RadarPathSolver  # noqa: E402,F401
+
+__all__ = ["RadarPaths", "RadarPathSolver", "render", "to_numpy"]
