@@ -9,7 +9,7 @@ import pytest
 from sionna_mmir import Capture, RadarConfig
 from sionna_mmir.cli.main import EXIT_BAD_INPUT, main
 
-SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth"]
+SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render"]
 
 
 def _run(*args):
@@ -117,3 +117,42 @@ def test_08_demo_runs_on_embedded_capture(tmp_path, monkeypatch):
     with pytest.raises(FileExistsError):
         demo.run_demo(out=tmp_path / "rep")
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".demo-")]
+
+
+def _wall_ply(path, x=3.0):
+    import trimesh
+
+    v = np.array([[x, -.5, -.5], [x, .5, -.5], [x, .5, .5], [x, -.5, .5]])
+    trimesh.Trimesh(v, [[0, 2, 1], [0, 3, 2]], process=False).subdivide().export(str(path))
+    return str(path)
+
+
+def test_09_render_writes_capture_with_target_at_its_range(tmp_path):
+    from sionna_mmir.processing.imaging import range_azimuth
+
+    wall = _wall_ply(tmp_path / "wall.ply")
+    out = tmp_path / "r.h5"
+    assert main(["render", wall, "--material", "wall=metal", "--radar", "awr1843",
+                 "--rays", "6000", "--chirps", "2", "--output", str(out)]) == 0
+    cap = Capture.load(str(out))
+    assert cap.frames.shape == (1, 3, 4, 2, 128)
+    ra, ranges, _ = range_azimuth(cap.frames[0], cap.radar)
+    r_i = np.unravel_index(np.argmax(ra), ra.shape)[0]
+    assert abs(ranges[r_i] - 3.0) < 2 * cap.radar.range_resolution
+
+
+def test_10_render_bad_inputs_exit_2_without_output(tmp_path, capsys):
+    behind = _wall_ply(tmp_path / "behind.ply", x=-3.0)
+    wall = _wall_ply(tmp_path / "wall.ply")
+    nan = tmp_path / "nan.obj"
+    nan.write_text("v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n")
+    cases = [([behind], "hits"), ([wall, "--material", "wall=unobtainium"], "unobtainium"),
+             ([wall, "--material", "wall=marble"], "marble"), ([str(nan)], "NaN"),
+             ([str(tmp_path / "missing.ply")], "does not exist"),
+             ([wall, "--position", "0,0"], "three")]
+    for args, word in cases:
+        out = tmp_path / "o.h5"
+        code = main(["render", *args, "--radar", "awr1843", "--rays", "500", "--output", str(out)])
+        err = capsys.readouterr().err
+        assert code == EXIT_BAD_INPUT and word in err, (args, err)
+        assert not out.exists()
