@@ -55,6 +55,13 @@ mmIR BSDF (lobe sampling with the balance-heuristic mixture pdf); a path that
 scattered once continues as a power-only (incoherent) path.  Russian roulette
 ends paths from ``rr_depth`` on.
 
+Reciprocal twins: a path whose receiver-side events are all specular and
+whose last event scatters (mirror first, scatter last) has a physical twin
+with the order reversed (scatter first, then the specular chain to the
+transmitter) that Rx-side sampling with a straight-line Tx connection cannot
+produce (the last event would be a delta).  By reciprocity its transfer is
+the same; it is added with the Tx and Rx legs swapped (``reciprocal=True``).
+
 MIMO ray reuse (Schuessler et al. 2021): the bounce topology (triangles,
 barycentrics, random choices) is found once from the array centre with a
 shared seed; only the first leg ``rx_j -> x_1`` and the last leg
@@ -150,6 +157,10 @@ class RadarPathSolver(PathSolver):
     velocities           ``{object: (vx, vy, vz)}`` [m/s] (scene frame)
     radar_velocity       ``(vx, vy, vz)`` [m/s] of the radar (scene frame)
     check_inside         raise if the radar sits inside closed geometry
+    reciprocal           add the reversed twin of every path whose
+                         receiver-side chain is specular and whose last
+                         event scatters (scatter first, mirror last: the
+                         Tx-side specular connection), by reciprocity
     samples              ``paths.samples`` of an earlier call: replay its
                          discrete decisions (hit triangles, barycentrics)
                          instead of tracing -- frozen samples, e.g. for
@@ -166,7 +177,7 @@ class RadarPathSolver(PathSolver):
                  seed: int = 0, cone_angle_deg: float = 90.0, coherent: bool = True,
                  scattering: bool = True, tx_pattern="cos", rx_pattern="cos",
                  rr_depth: int = 2, velocities: dict | None = None, radar_velocity=None,
-                 check_inside: bool = True, samples=None) -> RadarPaths:
+                 check_inside: bool = True, samples=None, reciprocal: bool = True) -> RadarPaths:
         radar = _radar_of(scene, radar)
         self._check_args(scene, num_rays, max_depth, seed, cone_angle_deg, velocities)
         geo = SceneGeometry(scene)
@@ -296,10 +307,18 @@ class RadarPathSolver(PathSolver):
                 P = dr.square(wavelength / (4.0 * math.pi)) * f_sc * cos_t * base
                 amp = dr.select(ok, dr.sqrt(dr.maximum(P, 1e-36)), 0.0)
                 phase = 2.0 * math.pi * rng.next_float32()
-                C_re += amp * dr.cos(phase)
-                C_im += amp * dr.sin(phase)
+                sc_re, sc_im = amp * dr.cos(phase), amp * dr.sin(phase)
+                C_re += sc_re
+                C_im += sc_im
             rate = self._rate(rate_chain, vel, it.obj, k_in, k_t, v_radar, k0)
-            outs.append((C_re, C_im, x, chain, rate, ok))
+            zero = dr.zeros(mi.Float, K)
+            outs.append((C_re, C_im, x, x1, zero, chain, rate, depth))
+            if scattering and reciprocal and depth > 1:
+                # the reversed path (scatter at x first, then the specular chain to
+                # the Tx) is not sampled from the Rx side: add it by reciprocity
+                m = coh & ok
+                outs.append((dr.select(m, sc_re, 0.0), dr.select(m, sc_im, 0.0), x1, x, chain,
+                             zero, rate, depth))
 
             if depth == int(max_depth):
                 break
@@ -439,19 +458,25 @@ class RadarPathSolver(PathSolver):
         T, R = radar.num_tx, radar.num_rx
         D = len(outs)
         P = D * K
-        C_re = dr.concat([o[0] for o in outs])
-        C_im = dr.concat([o[1] for o in outs])
-        X = mi.Point3f(*(dr.concat([o[2][c] for o in outs]) for c in range(3)))
-        chain = dr.concat([o[3] for o in outs])
-        rate = dr.concat([o[4] for o in outs])
-        X1 = mi.Point3f(*(dr.concat([x1[c]] * D) for c in range(3)))
+
+        def cat(i):
+            return dr.concat([o[i] for o in outs])
+
+        def cat3(i):
+            return mi.Point3f(*(dr.concat([o[i][c] for o in outs]) for c in range(3)))
+
+        C_re, C_im = cat(0), cat(1)
+        X, X1 = cat3(2), cat3(3)           # Tx-leg and Rx-leg interaction points
+        chain_t, chain = cat(4), cat(5)    # chain lengths on the Tx / Rx side
+        rate = cat(6)
         # per-Tx leg [T, P] and per-Rx leg [R, P]
         ti = dr.arange(mi.UInt32, T * P)
         t_idx, p_t = ti // P, ti % P
         txp = _gather3(tx_w, t_idx)
         xp = _gather3(X, p_t)
-        dt = dr.maximum(dr.norm(xp - txp), 1e-6)
-        g_t = dr.sqrt(ptx.gain(pose.to_radar((xp - txp) / dt), t_idx)) / dt
+        d_t = dr.maximum(dr.norm(xp - txp), 1e-6)
+        dt = d_t + dr.gather(mi.Float, chain_t, p_t)
+        g_t = dr.sqrt(ptx.gain(pose.to_radar((xp - txp) / d_t), t_idx)) / dt
         ri = dr.arange(mi.UInt32, R * P)
         r_idx, p_r = ri // P, ri % P
         rxp = _gather3(rx_w, r_idx)
@@ -471,6 +496,6 @@ class RadarPathSolver(PathSolver):
         a_im = dr.gather(mi.Float, C_im, p) * g
         tau = (dr.gather(mi.Float, dt, t * P + p) + dr.gather(mi.Float, L, r * P + p)) / SPEED_OF_LIGHT
         tau_rate = dr.gather(mi.Float, rate, p) if moving else None
-        depth = np.repeat(np.arange(1, D + 1, dtype=np.int32), K)
+        depth = np.repeat(np.array([o[7] for o in outs], dtype=np.int32), K)
         return RadarPaths(a_re=a_re, a_im=a_im, tau=tau, tau_rate=tau_rate, shape=(T, R, P),
                           depth=depth, num_candidates=N, info={"hits": K})
