@@ -174,7 +174,7 @@ def two_plates():
 
 @pytest.mark.parametrize("k, step", [(0, 0.003), (1, 0.003), (2, 5e-6), (3, 3e-4), (4, 0.02), (5, 3e-6)])
 def test_03_material_parameters_on_ra_loss(two_plates, k, step):
-    h = Harness(two_plates, "ra", coherent=k not in (3, 4))
+    h = Harness(two_plates, "ra")
     obj = two_plates.mesh_objects["near"]
     ad, fd = check(h, obj, "vertex_materials", (1, k), step)
     _assert_close(ad, fd, f"material {k} (RA loss)")

@@ -71,6 +71,12 @@ Amplitudes factor as ``a[i, j, p] = C[p] g_t[i, p] g_r[j, p]``.
 Visibility of the two legs and the Fresnel/polarisation terms are taken from
 the array centre (the array is millimetres to centimetres across).
 
+Convention: the field terms above are channel coefficients in the
+``exp(+j w t)`` / ``exp(-j k r)`` convention of ITU-R P.2040 and Sionna RT
+(``h(f) = sum a_s exp(-j 2 pi f tau)``); the beat signal of the FMCW
+receiver is ``sum conj(a_s) exp(+j 2 pi f_k tau)``, so ``RadarPaths`` holds
+``a = conj(a_s)`` -- the same convention the Sionna RT baseline uses.
+
 Motion: objects with a velocity (``velocities={name: [vx, vy, vz]}``) and a
 moving radar (``radar_velocity``) give each path a delay rate
 ``d tau / dt = sum_l v_l . dL/dx_l / c`` for Doppler across chirps and TDM
@@ -492,8 +498,9 @@ class RadarPathSolver(PathSolver):
         gt = dr.gather(mi.Float, g_t, t * P + p)
         gr = dr.gather(mi.Float, g_r, r * P + p)
         g = gt * gr
+        # FMCW beat convention: a = conj(channel coefficient) (see fmcw.model)
         a_re = dr.gather(mi.Float, C_re, p) * g
-        a_im = dr.gather(mi.Float, C_im, p) * g
+        a_im = -dr.gather(mi.Float, C_im, p) * g
         tau = (dr.gather(mi.Float, dt, t * P + p) + dr.gather(mi.Float, L, r * P + p)) / SPEED_OF_LIGHT
         tau_rate = dr.gather(mi.Float, rate, p) if moving else None
         depth = np.repeat(np.array([o[7] for o in outs], dtype=np.int32), K)
