@@ -6,7 +6,7 @@
                 ``latents() / render(latents, seed)`` can be fitted
 ``adam``        a NumPy Adam with checkpointable state and LR schedules
 ``fitter``      :func:`fit`: the loop (RA loss of paper eq. 7, progress bar,
-                HDF5 checkpoints, exact resume)
+                HDF5 checkpoints, resume)
 """
 from .adam import Adam, schedule_lr
 from .fitter import FitResult, fit, load_checkpoint

@@ -5,7 +5,9 @@ iteration``), so the gradient is stochastic but the whole run is a
 deterministic function of its settings.  A checkpoint holds the latents, the
 Adam state and the loss history in float64; a fit killed at any point and
 restarted with ``resume=True`` continues from the last checkpoint and reaches
-bit-for-bit the result of an uninterrupted run.
+the result of an uninterrupted run (to float32 rounding: Dr.Jit accumulates
+gradients of gathers with multi-threaded atomics, so the summation order --
+and the last bits -- can differ between any two runs).
 """
 from __future__ import annotations
 
