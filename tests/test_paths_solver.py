@@ -241,3 +241,26 @@ def test_13_no_hits_gives_empty_paths_and_zero_adc():
     paths = RadarPathSolver()(scene, num_rays=1000)
     assert paths.num_paths == 0
     assert not np.any(to_numpy(paths.adc(radar)))
+
+
+def test_14_free_space_diffraction_redirects_a_small_power_fraction(monkeypatch):
+    """Rays hitting near a plate's edges are diffracted (FSD) and continue past it."""
+    import drjit as dr
+
+    counts = []
+    orig = RadarPathSolver._diffract
+
+    def spy(*a, **k):
+        mask, wo = orig(*a, **k)
+        counts.append(int(dr.count(mask)[0]))
+        return mask, wo
+
+    monkeypatch.setattr(RadarPathSolver, "_diffract", staticmethod(spy))
+    scene = load_scene({"plate": _square([2, 0, 0], 0.4), "wall": _square([4, 0, 0], 3.0)},
+                       materials={"plate": "metal", "wall": "concrete"},
+                       radar=RadarConfig.awr1843())
+    s = RadarPathSolver()
+    p0 = float(s(scene, num_rays=20_000, max_depth=3, seed=1).power()[0])
+    p1 = float(s(scene, num_rays=20_000, max_depth=3, seed=1, diffraction=True).power()[0])
+    assert counts and counts[0] > 0
+    assert p1 != p0 and abs(p1 - p0) < 0.05 * p0

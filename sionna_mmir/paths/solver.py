@@ -108,6 +108,12 @@ from ..bsdf import mmwave  # noqa: E402
 RAY_EPSILON = 1e-4
 
 
+def gate_fsd(E, k_in, n, sc):
+    """Edge opacity of the FSD lobe: the Fresnel energy gate of the surface."""
+    fs, fp = polarization_fractions(E, k_in, n)
+    return fs * dr.squared_norm(sc.r_s) + fp * dr.squared_norm(sc.r_p)
+
+
 def _gather3(v, idx):
     return mi.Point3f(*(dr.gather(mi.Float, v[c], idx) for c in range(3)))
 
@@ -163,6 +169,15 @@ class RadarPathSolver(PathSolver):
     velocities           ``{object: (vx, vy, vz)}`` [m/s] (scene frame)
     radar_velocity       ``(vx, vy, vz)`` [m/s] of the radar (scene frame)
     check_inside         raise if the radar sits inside closed geometry
+    diffraction          free-space diffraction (FSD, Steinberg et al. 2024;
+                         :mod:`sionna_mmir.bsdf.fsd`) at interactions near
+                         boundary / crease edges: with probability ``beta``
+                         (the FSD diffracted fraction, scaled by the Fresnel
+                         energy gate as edge opacity) the ray is diffracted
+                         into a sampled forward direction and continues as a
+                         power (incoherent) path
+    fsd_width            Gaussian beam footprint ``s`` of the FSD lobe [m]
+                         (default 3 wavelengths)
     reciprocal           add the reversed twin of every path whose
                          receiver-side chain is specular and whose last
                          event scatters (scatter first, mirror last: the
@@ -183,7 +198,8 @@ class RadarPathSolver(PathSolver):
                  seed: int = 0, cone_angle_deg: float = 90.0, coherent: bool = True,
                  scattering: bool = True, tx_pattern="cos", rx_pattern="cos",
                  rr_depth: int = 2, velocities: dict | None = None, radar_velocity=None,
-                 check_inside: bool = True, samples=None, reciprocal: bool = True) -> RadarPaths:
+                 check_inside: bool = True, samples=None, reciprocal: bool = True,
+                 diffraction: bool = False, fsd_width: float | None = None) -> RadarPaths:
         radar = _radar_of(scene, radar)
         self._check_args(scene, num_rays, max_depth, seed, cone_angle_deg, velocities)
         geo = SceneGeometry(scene)
@@ -247,6 +263,7 @@ class RadarPathSolver(PathSolver):
         v_radar = mi.Vector3f(*(float(c) for c in (np.asarray(radar_velocity, dtype=float).reshape(3)
                                                    if radar_velocity is not None else np.zeros(3))))
         first_pdf = pdf
+        fsd_state = self._fsd_setup(geo, wavelength, fsd_width) if diffraction else None
 
         outs = []
         for depth in range(1, int(max_depth) + 1):
@@ -334,8 +351,13 @@ class RadarPathSolver(PathSolver):
             if not coherent:
                 p_spec = dr.zeros(mi.Float, K)
             u_ev = rng.next_float32()
-            spec = it.valid & (u_ev < p_spec)
-            scat = it.valid & ~spec & scattering
+            live = it.valid
+            if diffraction:
+                diff, k_diff = self._diffract(fsd_state, x, k_in, gate_fsd(E, k_in, n, sc_in),
+                                              wavelength, rng, tape, it.valid)
+                live = it.valid & ~diff
+            spec = live & (u_ev < p_spec)
+            scat = live & ~spec & scattering
             # specular branch
             k_mir = mirror(k_in, n)
             E_new = reflect_field(E, k_in, n, sc_in.r_s, sc_in.r_p).scale(dr.sqrt(eta_in))
@@ -356,6 +378,9 @@ class RadarPathSolver(PathSolver):
             # become incoherent: fold the coherent chain's power into beta
             base_coh = E.power() * inv_p * cos_in * it.area_ratio / (dr.maximum(p_area, 1e-30) * N)
             beta = dr.select(scat & coh, base_coh, beta)
+            if diffraction:
+                # diffracted lanes carry their power on (eval / (pdf * beta) = 1)
+                beta = dr.select(diff & coh, base_coh, beta)
             beta = dr.select(spec & ~coh, beta * pol_pow / dr.maximum(p_spec, 1e-6), beta)
             pending = ((1.0 - eta_in) / dr.maximum(1.0 - p_spec, 1e-6),
                        n, (params_in, 1.0), wi_loc, dr.detach(pdf_s), ok_s)
@@ -364,6 +389,8 @@ class RadarPathSolver(PathSolver):
             coh = coh & spec
             # Russian roulette on the power-carrying paths
             alive = spec | ok_s
+            if diffraction:
+                alive |= diff
             if depth + 1 > rr_depth:
                 q = tape.freeze(dr.clip(dr.select(coh, pol_pow, 0.5), 0.1, 1.0))
                 survive = rng.next_float32() < q
@@ -371,10 +398,15 @@ class RadarPathSolver(PathSolver):
                 inv_p = dr.select(coh, inv_p / q, inv_p)
                 beta = dr.select(~coh, beta / q, beta)
             k_next = dr.select(spec, k_mir, k_sc)
+            if diffraction:
+                coh = coh & ~diff
+                k_next = dr.select(diff, k_diff, k_next)
             # trace the next segment (detached), rebuild in AD
             with dr.suspend_grad():
                 side = dr.select(dr.dot(dr.detach(k_next), dr.detach(ng)) > 0, 1.0, -1.0)
                 o2 = dr.detach(x) + dr.detach(ng) * (RAY_EPSILON * side)
+                if diffraction:       # free-space diffraction passes the surface
+                    o2 = dr.select(diff, dr.detach(x) + dr.detach(k_next) * 1e-3, o2)
                 v2, ob2, fa2, uu, vv = geo.trace(o2, dr.detach(k_next), alive)
             # motion along the chain: vertex x moving with v contributes v.(u_in + u_out)
             rate_chain = rate_chain + self._vertex_rate(vel, it.obj, k_in, -k_next)
@@ -390,6 +422,46 @@ class RadarPathSolver(PathSolver):
                                velocities is not None or radar_velocity is not None)
         paths.samples = samples if samples is not None else (geo.record, tape.values)
         return paths
+
+    # ------------------------------------------------------------- diffraction
+    @staticmethod
+    def _fsd_setup(geo, wavelength, width):
+        from ..scene.edges import EdgeIndex, find_diffracting_edges
+
+        verts = np.asarray(dr.detach(geo.positions), dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(geo.faces, dtype=np.int64).reshape(-1, 3)
+        es = find_diffracting_edges(verts, faces)
+        s = float(width) if width is not None else 3.0 * wavelength
+        return {"edges": es, "index": EdgeIndex(es) if len(es) else None, "s": s,
+                "radius": 3.0 * s}
+
+    @staticmethod
+    def _diffract(state, x, k_in, opacity, wavelength, rng, tape, valid):
+        """``(mask, direction)`` of lanes diffracted by nearby edges (FSD).
+
+        Detached: edge diffraction redirects power but passes no gradient.
+        """
+        from ..bsdf import fsd
+
+        n = dr.width(valid)
+        u_d, u1, u2, u3 = (rng.next_float32() for _ in range(4))
+        if state["index"] is None:
+            return tape.freeze(dr.zeros(mi.Bool, n)), dr.zeros(mi.Vector3f, n)
+        xs = np.column_stack([np.asarray(dr.detach(x[c]), dtype=np.float64) for c in range(3)])
+        idx, ok = state["index"].query(xs, state["radius"], max_edges=4)
+        ok &= np.asarray(valid, dtype=bool)[:, None]
+        es = state["edges"]
+        sel = [getattr(es, name)[idx.ravel()].reshape(idx.shape + (3,))
+               for name in ("p0", "p1", "apex0", "apex1")]
+        edges = fsd.FsdEdges.from_numpy(*sel, valid=ok)
+        with dr.suspend_grad():
+            d, xd = dr.detach(k_in), dr.detach(x)
+            p_d = tape.freeze(fsd.beta(d, xd, edges, wavelength, state["s"],
+                                       opacity=dr.detach(opacity), check=False))
+            wo, pdf = fsd.sample(d, xd, edges, wavelength, state["s"], u1, mi.Point2f(u2, u3),
+                                 check=False)
+            mask = tape.freeze(valid & (u_d < p_d) & (pdf > 0))
+        return mask, wo
 
     # --------------------------------------------------------------- internals
     @staticmethod
