@@ -50,6 +50,7 @@ class Interaction:
     ng          ``mi.Vector3f`` unit geometric normal (AD)
     area_ratio  ``mi.Float`` ``A / detach(A)`` of the hit triangle (AD)
     mat         list of 6 ``mi.Float``: ``eps', eps'', sigma_h, l_c, tau, d``
+    tri         the hit triangle's vertices ``(P0, P1, P2)`` (AD)
     ==========  =====================================================
     """
 
@@ -61,6 +62,7 @@ class Interaction:
     ng: object
     area_ratio: object
     mat: list
+    tri: tuple = ()
 
 
 class Tape:
@@ -225,4 +227,4 @@ class SceneGeometry:
         area0 = tape.freeze(area) if tape is not None else dr.detach(area)
         ratio = area / dr.maximum(area0, 1e-20)
         return Interaction(valid=valid, obj=obj, face=face, p=p, n=n, ng=ng,
-                           area_ratio=ratio, mat=mat)
+                           area_ratio=ratio, mat=mat, tri=tuple(P))
