@@ -10,6 +10,6 @@
 """
 from .adam import Adam, schedule_lr
 from .fitter import FitResult, fit, load_checkpoint
-from .models import MMIRModel
+from .models import MMIRModel, SionnaModel
 
-__all__ = ["Adam", "FitResult", "MMIRModel", "fit", "load_checkpoint", "schedule_lr"]
+__all__ = ["Adam", "FitResult", "MMIRModel", "SionnaModel", "fit", "load_checkpoint", "schedule_lr"]

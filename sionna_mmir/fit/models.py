@@ -144,3 +144,46 @@ class MMIRModel:
         for k, v in z.items():
             out[k] = reparam.to_physical(v) if k.endswith(".materials") else np.asarray(v)
         return out
+
+
+class SionnaModel:
+    """The Sionna RT baseline (:class:`~sionna_mmir.baseline.SionnaBaseline`) as a model.
+
+    Learns what Sionna exposes: per-object material scalars (relative
+    permittivity, conductivity, scattering / XPD coefficients, thickness), as
+    the baseline's latents; same loss, optimiser and iteration budget as
+    :class:`MMIRModel`.
+    """
+
+    def __init__(self, baseline):
+        self.baseline = baseline
+        self.radar = baseline.radar
+
+    def latents(self) -> dict:
+        import drjit as dr
+
+        return {k: np.asarray(dr.detach(v), dtype=np.float64).reshape(-1)
+                for k, v in self.baseline.params().items()}
+
+    def lr_scales(self) -> dict:
+        return {k: 1.0 for k in self.latents()}
+
+    def _vars(self, z, grad):
+        import drjit as dr
+        import mitsuba as mi
+
+        out = {}
+        for k, v in z.items():
+            t = mi.Float(np.asarray(v, dtype=np.float32).reshape(-1))
+            if grad:
+                dr.enable_grad(t)
+            out[k] = t
+        return out
+
+    def apply(self, z: dict) -> None:
+        self.baseline.apply(self._vars(z, grad=False))
+
+    def render(self, z: dict, seed: int):
+        handles = self._vars(z, grad=True)
+        self.baseline.apply(handles)
+        return self.baseline.render(seed=int(seed)), handles
