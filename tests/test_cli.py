@@ -9,7 +9,7 @@ import pytest
 from sionna_mmir import Capture, RadarConfig
 from sionna_mmir.cli.main import EXIT_BAD_INPUT, main
 
-SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render"]
+SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render", "fit", "compare"]
 
 
 def _run(*args):
@@ -156,3 +156,54 @@ def test_10_render_bad_inputs_exit_2_without_output(tmp_path, capsys):
         err = capsys.readouterr().err
         assert code == EXIT_BAD_INPUT and word in err, (args, err)
         assert not out.exists()
+
+
+def _target_capture(tmp_path):
+    wall = _wall_ply(tmp_path / "wall.ply")
+    tgt = tmp_path / "tgt.h5"
+    assert main(["render", wall, "--material", "wall=metal", "--radar", "awr1843",
+                 "--rays", "3000", "--output", str(tgt)]) == 0
+    return wall, str(tgt)
+
+
+def test_11_fit_and_compare_write_reports_and_resume(tmp_path):
+    import json
+
+    wall, tgt = _target_capture(tmp_path)
+    out = tmp_path / "fit"
+    common = [tgt, wall, "--iterations", "2", "--rays", "1500"]
+    assert main(["fit", *common, "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["mmIR"]["loss"]) == 2
+    for f in ("report.md", "ra_panels.png", "loss.png", "table2.csv", "fit_mmir.h5"):
+        assert (out / f).exists(), f
+    # resume: the finished checkpoint is picked up, no iteration is redone
+    assert main(["fit", *common, "--out", str(out), "--resume"]) == 0
+    again = json.loads((out / "summary.json").read_text())
+    np.testing.assert_allclose(again["mmIR"]["loss"], summary["mmIR"]["loss"], rtol=1e-6)
+    cmp_out = tmp_path / "cmp"
+    assert main(["compare", *common, "--sionna-samples", "2000", "--out", str(cmp_out)]) == 0
+    table = (cmp_out / "table2.md").read_text()
+    assert "mmIR" in table and "Sionna RT" in table
+
+
+def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
+    wall, tgt = _target_capture(tmp_path)
+    behind = _wall_ply(tmp_path / "behind.ply", x=-3.0)
+    nan = tmp_path / "nan.h5"
+    cap = Capture.load(tgt)
+    frames = cap.frames.copy()
+    frames[0, 0, 0, 0, 0] = np.nan
+    with pytest.raises(Exception):
+        Capture(frames, cap.radar, {}, "x").save(str(nan))
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"\x00" * 7)
+    cases = [([tgt, str(behind)], "do not overlap"), ([str(tmp_path / "no.h5"), wall], "no.h5"),
+             ([str(junk), wall], "junk.bin"), ([tgt, str(tmp_path / "no.ply")], "does not exist"),
+             ([tgt, wall, "--iterations", "0"], "iterations")]
+    for args, word in cases:
+        out = tmp_path / "o"
+        code = main(["fit", *args, "--rays", "500", "--out", str(out)])
+        err = capsys.readouterr().err
+        assert code == EXIT_BAD_INPUT and word in err, (args, err)
+        assert not out.exists() and not (tmp_path / "o.partial").exists()

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import render_cmd
+from . import fit_cmd, render_cmd
 
 EXIT_BAD_INPUT = 2
 
@@ -66,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true")
 
     render_cmd.add_parser(sub)
+    fit_cmd.add_parsers(sub)
     return parser
 
 
@@ -78,7 +79,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     handlers = {"demo": commands.cmd_demo, "info": commands.cmd_info,
                 "convert": commands.cmd_convert, "ra": commands.cmd_ra,
-                "synth": commands.cmd_synth, "render": render_cmd.cmd_render}
+                "synth": commands.cmd_synth, "render": render_cmd.cmd_render, "fit": fit_cmd.cmd_fit,
+                "compare": fit_cmd.cmd_compare}
     try:
         return int(handlers[args.command](args) or 0)
     except (SionnaMMIRError, FileNotFoundError, FileExistsError, IsADirectoryError,
