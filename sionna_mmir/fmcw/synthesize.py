@@ -54,6 +54,18 @@ def _powers(seed, z, n):
     return out
 
 
+def _single_thread_blas():
+    """Context limiting BLAS to one thread: the adjoint's many small batched
+    products run 1.5-10x faster without OpenBLAS threading (measured)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # optional: fall back to the default threading
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 class _Prepared:
     """Inputs broadcast to ``[T, R, P]``; phasors generated per chunk of pairs.
 
@@ -158,7 +170,8 @@ class _Prepared:
         G = np.asarray(G, np.complex128)
         if self.L == 1:
             G = G.sum(axis=2, keepdims=True)
-        S0, S1 = self._adjoint_sums(G)
+        with _single_thread_blas():
+            S0, S1 = self._adjoint_sums(G)
         f0, S, t0, dt = radar.start_frequency, radar.slope, radar.adc_start_time, 1.0 / radar.sample_rate
         W = 2 * np.pi * (f0 + S * t0) * S0 + 2 * np.pi * S * dt * S1     # sum_k w_k conj(E) G
         ac = np.conj(self.a)[:, :, None, :]

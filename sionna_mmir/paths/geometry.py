@@ -147,7 +147,10 @@ class SceneGeometry:
                 if not np.isfinite(a).all():
                     bad = np.flatnonzero(~np.isfinite(a).all(axis=-1))[:5].tolist()
                     raise InputValueError(f"object {name!r}: {key} holds NaN/Inf (vertices {bad})")
-            n = np.asarray(dr.detach(obj.vertex_normals))[np.unique(obj.faces)]
+            used = getattr(obj, "_referenced", None)
+            if used is None:                   # faces never change: cache the vertex set
+                used = obj._referenced = np.unique(obj.faces)
+            n = np.asarray(dr.detach(obj.vertex_normals))[used]
             if (np.linalg.norm(n, axis=1) < 1e-12).any():
                 raise InputValueError(f"object {name!r}: zero-length vertex normals")
             m = np.asarray(dr.detach(obj.vertex_materials))
