@@ -352,13 +352,13 @@ class RadarPathSolver(PathSolver):
                 C_im += sc_im
             rate = self._rate(rate_chain, vel, it.obj, k_in, k_t, v_radar, k0)
             zero = dr.zeros(mi.Float, K)
-            outs.append((C_re, C_im, x, x1, zero, chain, rate, depth))
+            outs.append((C_re, C_im, x, x1, zero, chain, rate, depth, ok))
             if scattering and reciprocal and depth > 1:
                 # the reversed path (scatter at x first, then the specular chain to
                 # the Tx) is not sampled from the Rx side: add it by reciprocity
                 m = coh & ok
                 outs.append((dr.select(m, sc_re, 0.0), dr.select(m, sc_im, 0.0), x1, x, chain,
-                             zero, rate, depth))
+                             zero, rate, depth, m))
 
             if depth == int(max_depth):
                 break
@@ -551,14 +551,34 @@ class RadarPathSolver(PathSolver):
     def _assemble(self, outs, radar, pose, geo, ptx, prx, tx_w, rx_w, x1, N, K, moving):
         """Expand per-path terms to ``[T, R, P]`` with per-element legs."""
         T, R = radar.num_tx, radar.num_rx
-        D = len(outs)
-        P = D * K
+        # keep only lanes that contribute (connected to the Tx): dead rays, failed
+        # shadow rays and empty reciprocal twins are dropped before the per-pair
+        # expansion (the masks are detached and frozen, so replay is identical)
+        kept = []
+        for o in outs:
+            idx = dr.compress(dr.detach(o[8]))
+            if dr.width(idx) == 0:
+                continue
+            g = []
+            for i, f in enumerate(o[:7]):
+                if i in (2, 3):
+                    g.append(_gather3(f, idx))
+                else:
+                    g.append(dr.gather(mi.Float, f, idx))
+            kept.append(tuple(g) + (o[7], dr.width(idx)))
+        if not kept:
+            return self._empty(T, R, N)
+        outs = kept
+        P = sum(o[8] for o in outs)
 
         def cat(i):
-            return dr.concat([o[i] for o in outs])
+            return dr.concat([o[i] for o in outs]) if len(outs) > 1 else outs[0][i]
 
         def cat3(i):
-            return mi.Point3f(*(dr.concat([o[i][c] for o in outs]) for c in range(3)))
+            return mi.Point3f(*(cat_c(i, c) for c in range(3)))
+
+        def cat_c(i, c):
+            return dr.concat([o[i][c] for o in outs]) if len(outs) > 1 else outs[0][i][c]
 
         C_re, C_im = cat(0), cat(1)
         X, X1 = cat3(2), cat3(3)           # Tx-leg and Rx-leg interaction points
@@ -592,6 +612,6 @@ class RadarPathSolver(PathSolver):
         a_im = -dr.gather(mi.Float, C_im, p) * g
         tau = (dr.gather(mi.Float, dt, t * P + p) + dr.gather(mi.Float, L, r * P + p)) / SPEED_OF_LIGHT
         tau_rate = dr.gather(mi.Float, rate, p) if moving else None
-        depth = np.repeat(np.array([o[7] for o in outs], dtype=np.int32), K)
+        depth = np.concatenate([np.full(o[8], o[7], dtype=np.int32) for o in outs])
         return RadarPaths(a_re=a_re, a_im=a_im, tau=tau, tau_rate=tau_rate, shape=(T, R, P),
                           depth=depth, num_candidates=N, info={"hits": K})
