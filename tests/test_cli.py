@@ -9,7 +9,7 @@ import pytest
 from sionna_mmir import Capture, RadarConfig
 from sionna_mmir.cli.main import EXIT_BAD_INPUT, main
 
-SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render", "fit", "compare"]
+SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render", "fit", "compare", "bench"]
 
 
 def _run(*args):
@@ -207,3 +207,16 @@ def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
         err = capsys.readouterr().err
         assert code == EXIT_BAD_INPUT and word in err, (args, err)
         assert not out.exists() and not (tmp_path / "o.partial").exists()
+
+
+def test_13_bench_reports_both_timings_and_rejects_bad_options(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "b.json"
+    assert main(["bench", "--rays", "300", "--repeat", "1", "--max-triangles", "3000",
+                 "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["mmir_s_per_it"] > 0 and res["sionna_s_per_it"] > 0
+    assert abs(res["ratio_mmir_over_sionna"] - res["mmir_s_per_it"] / res["sionna_s_per_it"]) < 1e-9
+    assert main(["bench", "--scene", "moon"]) == EXIT_BAD_INPUT
+    assert "unknown scene" in capsys.readouterr().err

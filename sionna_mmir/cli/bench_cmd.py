@@ -1,0 +1,83 @@
+"""``sionna-mmir bench``: seconds per fit iteration, mmIR vs Sionna RT, same scene, same run.
+
+One fit iteration = render with a fresh sample set, RA processing, min-max RA
+loss, backward pass -- for mmIR (gradients to every per-vertex material,
+normal and beam parameter) and for the Sionna RT baseline (gradients to its
+per-object material scalars), on the same LiDAR-like benchmark scene, radar
+and ray budget (mmIR ``rays`` from the array centre; Sionna ``rays`` samples
+per source).  Warm-up first, then the median of ``--repeat`` iterations;
+the ratio is the figure to read on a noisy machine.
+"""
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("bench", help="seconds per fit iteration: mmIR vs Sionna RT, same run")
+    p.add_argument("--scene", default="hallway", help="benchmark scene (sionna_mmir.scenes)")
+    p.add_argument("--rays", type=int, default=10_000)
+    p.add_argument("--depth", type=int, default=2)
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--max-triangles", type=int, default=50_000, help="LiDAR mesh budget")
+    p.add_argument("--json", default=None, help="write results here")
+
+
+def _time_iteration(model, target, repeat):
+    import drjit as dr
+
+    from ..processing.drjit_ra import ra_loss_from_adc
+
+    z = model.latents()
+    times = []
+    for i in range(repeat + 1):
+        t0 = time.perf_counter()
+        adc, handles = model.render(z, seed=100 + i)
+        loss = ra_loss_from_adc(adc, model.radar, target)
+        dr.backward(loss)
+        for h in handles.values():
+            dr.eval(dr.grad(h))
+        if i:                                   # the first one compiles kernels
+            times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def cmd_bench(args) -> int:
+    from ..baseline import SionnaBaseline
+    from ..compare.ground_truth import scene_radar
+    from ..errors import ConfigError
+    from ..fit import MMIRModel, SionnaModel
+    from ..processing.imaging import range_azimuth
+    from ..paths.render import to_numpy
+    from ..scene import load_scene
+    from ..scenes import SCENES, build_scene, lidarize_scene
+
+    if args.scene not in SCENES:
+        raise ConfigError(f"unknown scene {args.scene!r}; choose from {sorted(SCENES)}")
+    if args.rays < 1 or args.repeat < 1:
+        raise ConfigError("--rays and --repeat must be >= 1")
+    spec = build_scene(args.scene, seed=0)
+    radar = scene_radar(spec)
+    lidar = lidarize_scene(spec, seed=0, max_triangles=args.max_triangles)
+    mats = {k: spec.materials[k] for k in lidar}
+    mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
+                   solver_options=dict(num_rays=args.rays, max_depth=args.depth))
+    adc, _ = mm.render(mm.latents(), seed=7)
+    target = range_azimuth(to_numpy(adc), radar)[0] ** 0.8      # any fixed, different map
+    sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=args.depth + 1,
+                                     samples_per_src=args.rays))
+    out = {"scene": args.scene, "triangles": int(sum(len(m.faces) for m in lidar.values())),
+           "rays": args.rays, "radar": radar.name,
+           "mmir_s_per_it": _time_iteration(mm, target, args.repeat),
+           "sionna_s_per_it": _time_iteration(sio, target, args.repeat)}
+    out["ratio_mmir_over_sionna"] = out["mmir_s_per_it"] / out["sionna_s_per_it"]
+    print(f"| scene | triangles | rays | mmIR s/it | Sionna RT s/it | ratio |\n|---|---|---|---|---|---|\n"
+          f"| {out['scene']} | {out['triangles']} | {out['rays']} | {out['mmir_s_per_it']:.2f} | "
+          f"{out['sionna_s_per_it']:.2f} | {out['ratio_mmir_over_sionna']:.2f} |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+    return 0
