@@ -170,6 +170,12 @@ class RadarPathSolver(PathSolver):
     velocities           ``{object: (vx, vy, vz)}`` [m/s] (scene frame)
     radar_velocity       ``(vx, vy, vz)`` [m/s] of the radar (scene frame)
     check_inside         raise if the radar sits inside closed geometry
+    sampling             ``"random"`` (Monte Carlo rays, the default) or
+                         ``"facets"``: one ray to the centroid of every
+                         triangle in the cone, weighted by its solid angle
+                         (a deterministic quadrature; with
+                         ``triangle_average`` the exact per-facet physical
+                         optics of PO codes); ``num_rays`` is then unused
     triangle_average     integrate the physical-optics phase exactly over
                          each hit triangle (:mod:`.triangle_po`; variance
                          reduction, default on)
@@ -204,7 +210,7 @@ class RadarPathSolver(PathSolver):
                  rr_depth: int = 2, velocities: dict | None = None, radar_velocity=None,
                  check_inside: bool = True, samples=None, reciprocal: bool = True,
                  diffraction: bool = False, fsd_width: float | None = None,
-                 triangle_average: bool = True) -> RadarPaths:
+                 triangle_average: bool = True, sampling: str = "random") -> RadarPaths:
         radar = _radar_of(scene, radar)
         self._check_args(scene, num_rays, max_depth, seed, cone_angle_deg, velocities)
         geo = SceneGeometry(scene)
@@ -229,22 +235,33 @@ class RadarPathSolver(PathSolver):
             self._check_inside(geo, dr.detach(c_w))
 
         # -------- candidate rays (shared seed; no AD)
-        N = int(num_rays)
-        sampler = mi.PCG32(size=N, initstate=int(seed))
-        u1, u2 = sampler.next_float32(), sampler.next_float32()
-        local, pdf = cone_directions(u1, u2, math.radians(cone_angle_deg))
-        d_radar = mi.Vector3f(local.z, local.x, local.y)        # +z_local -> boresight +x
-        with dr.suspend_grad():
-            d_scene = pose.to_scene(d_radar)
-            origin = dr.zeros(mi.Point3f, N) + dr.detach(c_w)
+        if sampling == "facets":
+            origin, d_scene, pdf, target = self._facet_rays(geo, pose, dr.detach(c_w), cone_angle_deg)
+            N = dr.width(pdf)
+            if N == 0:
+                return self._empty(T, R, 0)
+        elif sampling == "random":
+            N = int(num_rays)
+            sampler = mi.PCG32(size=N, initstate=int(seed))
+            u1, u2 = sampler.next_float32(), sampler.next_float32()
+            local, pdf = cone_directions(u1, u2, math.radians(cone_angle_deg))
+            d_radar = mi.Vector3f(local.z, local.x, local.y)        # +z_local -> boresight +x
+            with dr.suspend_grad():
+                d_scene = pose.to_scene(d_radar)
+                origin = dr.zeros(mi.Point3f, N) + dr.detach(c_w)
+        else:
+            raise ConfigError(f"sampling must be 'random' or 'facets', got {sampling!r}")
         valid, obj, face, u, v = geo.trace(origin, d_scene)
+        if sampling == "facets":             # keep rays that reach their own facet
+            valid &= tape.freeze(face == target)
         keep = dr.compress(valid)
         K = dr.width(keep)
         if K == 0:
             return self._empty(T, R, N)
-        pdf = dr.gather(mi.Float, pdf, keep)
+        pdf = tape.freeze(dr.gather(mi.Float, pdf, keep))
         obj, face = dr.gather(mi.UInt32, obj, keep), dr.gather(mi.UInt32, face, keep)
         u, v = dr.gather(mi.Float, u, keep), dr.gather(mi.Float, v, keep)
+        n_est = 1 if sampling == "facets" else N
         valid = dr.full(mi.Bool, True, K)
         rng = mi.PCG32(size=K, initstate=int(seed) + 0x9E3779B9)
 
@@ -317,7 +334,7 @@ class RadarPathSolver(PathSolver):
                 pr, pi_ = E_ref.dot(e_t)
                 eta_b = dr.exp(-dr.square(k_wave * sigma_h * (cos_in + cos_t)))
                 scale = (0.5 * (cos_in + cos_t) * dr.sqrt(eta_b) * inv_p * it.area_ratio
-                         / (4.0 * math.pi * dr.maximum(p_area, 1e-30) * N))
+                         / (4.0 * math.pi * dr.maximum(p_area, 1e-30) * n_est))
                 m = ok & coh
                 wr, wi = -pi_ * scale, pr * scale            # j * (pr + j pi)
                 if triangle_average:
@@ -343,7 +360,7 @@ class RadarPathSolver(PathSolver):
                 eta_t = params.eta(dr.maximum(cos_t, 0.0))
                 f_sc = (1.0 - eta_t) * mmwave.eval(wi_t, wo_r, params)
                 base = dr.select(coh, E.power() * inv_p * cos_in * it.area_ratio
-                                 / (dr.maximum(p_area, 1e-30) * N), beta)
+                                 / (dr.maximum(p_area, 1e-30) * n_est), beta)
                 P = dr.square(wavelength / (4.0 * math.pi)) * f_sc * cos_t * base
                 amp = dr.select(ok, dr.sqrt(dr.maximum(P, 1e-36)), 0.0)
                 phase = 2.0 * math.pi * rng.next_float32()
@@ -393,7 +410,7 @@ class RadarPathSolver(PathSolver):
                 ok_s = tape.freeze(scat & (wo_s.z > 1e-4) & (pdf_s > 0))
                 pdf_s = tape.freeze(pdf_s)
             # become incoherent: fold the coherent chain's power into beta
-            base_coh = E.power() * inv_p * cos_in * it.area_ratio / (dr.maximum(p_area, 1e-30) * N)
+            base_coh = E.power() * inv_p * cos_in * it.area_ratio / (dr.maximum(p_area, 1e-30) * n_est)
             beta = dr.select(scat & coh, base_coh, beta)
             if diffraction:
                 # diffracted lanes carry their power on (eval / (pdf * beta) = 1)
@@ -439,6 +456,39 @@ class RadarPathSolver(PathSolver):
                                velocities is not None or radar_velocity is not None)
         paths.samples = samples if samples is not None else (geo.record, tape.values)
         return paths
+
+    # ---------------------------------------------------------------- facets
+    @staticmethod
+    def _facet_rays(geo, pose, centre, cone_angle_deg):
+        """Rays from the array centre to every facet centroid inside the cone.
+
+        Returns ``(origin, direction, pdf, face)`` with ``pdf = 1 / Omega_t``,
+        ``Omega_t = A_t |cos| / d^2`` the facet's solid angle, so that the
+        estimator's area density is ``1 / A_t`` (a quadrature weight).
+        """
+        V = np.asarray(dr.detach(geo.positions), dtype=np.float64).reshape(-1, 3)
+        F = np.asarray(geo.faces, dtype=np.int64).reshape(-1, 3)
+        p0, p1, p2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+        cen = (p0 + p1 + p2) / 3.0
+        cr = np.cross(p1 - p0, p2 - p0)
+        area = 0.5 * np.linalg.norm(cr, axis=1)
+        nrm = cr / np.maximum(2 * area, 1e-30)[:, None]
+        c = np.array([float(centre[i][0]) for i in range(3)])
+        d = cen - c
+        dist = np.linalg.norm(d, axis=1)
+        d /= np.maximum(dist, 1e-12)[:, None]
+        rows = np.array([[float(r[i][0]) for i in range(3)] for r in pose.rows])
+        bore = rows[:, 0]                                     # radar +x in the scene
+        cos_b = d @ bore
+        cos_n = np.abs(np.sum(d * nrm, axis=1))
+        ok = (cos_b >= np.cos(np.radians(cone_angle_deg)) - 1e-9) & (cos_n > 1e-4) & (dist > 1e-3)
+        idx = np.flatnonzero(ok).astype(np.uint32)
+        omega = area[idx] * cos_n[idx] / dist[idx] ** 2
+        n = len(idx)
+        dd = d[idx].astype(np.float32)
+        origin = dr.zeros(mi.Point3f, n) + mi.Point3f(*(float(v) for v in c))
+        direction = mi.Vector3f(mi.Float(dd[:, 0]), mi.Float(dd[:, 1]), mi.Float(dd[:, 2]))
+        return origin, direction, mi.Float((1.0 / omega).astype(np.float32)), mi.UInt32(idx)
 
     # ------------------------------------------------------------- diffraction
     @staticmethod
