@@ -256,3 +256,14 @@ def test_09_multibounce_gradients():
     fv = _centre_vertex(floor_obj, [1.75, 0.0, -0.4])
     ad, fd = check(h, floor_obj, "vertex_positions", (fv, 2), 1e-3)
     _assert_close(ad, fd, "floor vertex z (depth 3)")
+
+
+def test_10_facet_quadrature_gradients(rough_scene):
+    """sampling='facets' (deterministic quadrature): material, normal and vertex position."""
+    obj = rough_scene.mesh_objects["wall"]
+    v = _centre_vertex(obj, [1.6, 0.05, 0.05])
+    h = Harness(rough_scene, "adc", sampling="facets", cone_angle_deg=30.0)
+    for key, k, step in (("vertex_materials", 0, 0.02), ("vertex_normals", 1, 0.01),
+                         ("vertex_positions", 0, 2e-5)):
+        ad, fd = check(h, obj, key, (v, k), step)
+        _assert_close(ad, fd, f"{key}[{k}] (facets)")
