@@ -42,6 +42,12 @@ def main(argv=None) -> int:
                    help="Sionna samples per source per iteration")
     p.add_argument("--gt-rays", type=int, default=100_000)
     p.add_argument("--gt-frames", type=int, default=4)
+    p.add_argument("--sampling", default="random", choices=["random", "facets"],
+                   help="mmIR ray sampling for the ground truth and the fit (facets: "
+                        "deterministic per-facet quadrature)")
+    p.add_argument("--gt-max-edge", type=float, default=0.25,
+                   help="ground-truth mesh refinement [m] (use ~0.04 with --sampling facets)")
+    p.add_argument("--lidar-max-triangles", type=int, default=200_000)
     p.add_argument("--out", default=HERE)
     args = p.parse_args(argv)
     fig_dir = os.path.join(args.out, "figures")
@@ -50,13 +56,15 @@ def main(argv=None) -> int:
     for name in args.scenes.split(","):
         t0 = time.time()
         spec = build_scene(name, seed=0)
-        cap = render_ground_truth(spec, seed=0, num_rays=args.gt_rays, frames=args.gt_frames)
+        cap = render_ground_truth(spec, seed=0, num_rays=args.gt_rays, frames=args.gt_frames,
+                                  max_edge=args.gt_max_edge, sampling=args.sampling)
         radar = cap.radar
         ra_ref = target_ra(cap.frames, radar)
-        lidar = lidarize_scene(spec, seed=0)
+        lidar = lidarize_scene(spec, seed=0, max_triangles=args.lidar_max_triangles)
         mats = {k: spec.materials[k] for k in lidar}
         mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
-                       solver_options=dict(num_rays=args.rays, max_depth=2))
+                       solver_options=dict(num_rays=args.rays, max_depth=2,
+                                           sampling=args.sampling))
         sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=3,
                                          samples_per_src=args.sionna_samples))
         sides = {}

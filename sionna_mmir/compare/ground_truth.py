@@ -21,7 +21,8 @@ def scene_radar(spec, num_chirps: int = 1):
 
 
 def render_ground_truth(spec, *, seed: int = 0, num_rays: int = 100_000, max_depth: int = 3,
-                        frames: int = 1, noise_db: float = -40.0, max_edge: float = 0.25):
+                        frames: int = 1, noise_db: float = -40.0, max_edge: float = 0.25,
+                        sampling: str = "random"):
     """Return a :class:`~sionna_mmir.captures.Capture` of ``spec``'s ground truth."""
     import mitsuba as mi
 
@@ -37,12 +38,12 @@ def render_ground_truth(spec, *, seed: int = 0, num_rays: int = 100_000, max_dep
     for name, obj in scene.mesh_objects.items():
         obj.vertex_materials = mi.TensorXf(truth[name].astype(np.float32))
     adc = np.stack([to_numpy(render(scene, num_rays=num_rays, max_depth=max_depth,
-                                    diffraction=True, seed=1000 * seed + f))
+                                    diffraction=True, seed=1000 * seed + f, sampling=sampling))
                     for f in range(frames)])
     rng = np.random.default_rng(seed)
     sigma = np.abs(adc).max() * np.sqrt(10 ** (noise_db / 10) / 2)
     adc = adc + sigma * (rng.standard_normal(adc.shape) + 1j * rng.standard_normal(adc.shape))
     meta = {"scene": spec.description if hasattr(spec, "description") else "", "seed": seed,
             "num_rays": num_rays, "max_depth": max_depth, "diffraction": True,
-            "noise_db": noise_db, "frames": frames}
+            "noise_db": noise_db, "frames": frames, "sampling": sampling, "max_edge": max_edge}
     return Capture(adc.astype(np.complex64), radar, meta, "sionna_mmir.ground_truth")
