@@ -37,8 +37,11 @@ def write_table(rows: list[dict], out_dir: str, stem: str = "table2") -> tuple[s
         vals = []
         for k, _, fmt in METRICS:
             x = np.array([r.get(k, np.nan) for r in sel], dtype=float)
-            vals.append(f"{fmt.format(np.nanmean(x))} +/- {fmt.format(np.nanstd(x))}")
-        sp = np.nanmean([r.get("s_per_it", np.nan) for r in sel])
+            x = x[np.isfinite(x)]
+            m, sd = (x.mean(), x.std()) if x.size else (float("nan"), float("nan"))
+            vals.append(f"{fmt.format(m)} +/- {fmt.format(sd)}")
+        sps = np.array([r.get("s_per_it", np.nan) for r in sel], dtype=float)
+        sp = float(np.nanmean(sps)) if np.isfinite(sps).any() else float("nan")
         lines.append(f"| **mean** | {model} | " + " | ".join(vals) + f" | {sp:.2f} |")
     md_path = os.path.join(out_dir, stem + ".md")
     with open(md_path, "w") as f:
