@@ -108,14 +108,17 @@ def test_08_demo_runs_on_embedded_capture(tmp_path, monkeypatch):
     from sionna_mmir.cli import demo
 
     monkeypatch.setattr(demo, "find_measured_dir", lambda: None)
-    summary = demo.run_demo(out=tmp_path / "rep")
+    summary = demo.run_demo(out=tmp_path / "rep", fit_iterations=1, fit_rays=2000,
+                            sionna_samples=20_000, progress=False)
     assert summary["note"] and "synthetic" in summary["note"]
+    assert set(summary["fit"]) == {"mmIR", "Sionna RT"}
+    assert "Sionna RT" in (tmp_path / "rep" / "table2.md").read_text()
     assert abs(summary["corner_range_m"] - 4.74) < 0.06
     assert summary["metrics"]["ra_correlation"] > 0.9
     for f in ("ra_panels.png", "report.md", "summary.json", "model.h5"):
         assert (tmp_path / "rep" / f).stat().st_size > 0
     with pytest.raises(FileExistsError):
-        demo.run_demo(out=tmp_path / "rep")
+        demo.run_demo(out=tmp_path / "rep", fit_iterations=0)
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".demo-")]
 
 

@@ -145,6 +145,12 @@ def cmd_synth(args) -> int:
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
-    summary = run_demo(capture=args.capture, out=args.out, overwrite=args.overwrite)
-    print(json.dumps(summary, indent=1))
+    summary = run_demo(capture=args.capture, out=args.out, overwrite=args.overwrite,
+                       fit_iterations=args.iterations)
+    short = {k: v for k, v in summary.items() if k != "fit"}
+    short["fit"] = {k: {"ra_correlation_before": v["metrics_before"]["ra_correlation"],
+                        "ra_correlation_after": v["metrics_after"]["ra_correlation"],
+                        "seconds_per_iteration": v["seconds_per_iteration"]}
+                    for k, v in summary.get("fit", {}).items()}
+    print(json.dumps(short, indent=1, default=float))
     return 0

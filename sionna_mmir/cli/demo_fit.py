@@ -34,8 +34,9 @@ def corner_scene_meshes(range_m: float, azimuth_rad: float, origin) -> dict:
     vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
     R = np.eye(3) + vx + vx @ vx / (1 + c)
     tri.vertices = tri.vertices @ R.T
-    apex = np.asarray(origin) + (range_m + a / np.sqrt(3)) * -to_radar
-    tri.vertices += apex - tri.vertices[np.argmin(tri.vertices @ -to_radar)]
+    # the triple-bounce phase centre is the apex (the point farthest from the radar)
+    apex = np.asarray(origin) + range_m * -to_radar
+    tri.vertices += apex - tri.vertices[np.argmax(tri.vertices @ -to_radar)]
     floor = trimesh.Trimesh(np.array([[1.0, -3, -FLOOR_DEPTH_M], [8, -3, -FLOOR_DEPTH_M],
                                       [8, 3, -FLOOR_DEPTH_M], [1.0, 3, -FLOOR_DEPTH_M]]),
                             [[0, 1, 2], [0, 2, 3]], process=False)

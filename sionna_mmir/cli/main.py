@@ -36,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "../shared/data/measured/mmwcas_corner/corner_4m7_slope79.mat if found)")
     p.add_argument("--out", default="sionna_mmir_demo", help="report folder")
     p.add_argument("--overwrite", action="store_true", help="replace an existing report")
+    p.add_argument("--iterations", type=int, default=6,
+                   help="fit iterations per model in the inverse-rendering stage (0: skip)")
 
     p = sub.add_parser("info", help="summarise a capture (radar, shapes, strongest return)")
     _add_capture_args(p)
