@@ -43,8 +43,11 @@ def main(argv=None) -> int:
     p.add_argument("--gt-rays", type=int, default=100_000)
     p.add_argument("--gt-frames", type=int, default=4)
     p.add_argument("--sampling", default="random", choices=["random", "facets"],
-                   help="mmIR ray sampling for the ground truth and the fit (facets: "
-                        "deterministic per-facet quadrature)")
+                   help="mmIR ray sampling for the fit (facets: deterministic per-facet "
+                        "quadrature)")
+    p.add_argument("--gt-sampling", default="random", choices=["random", "facets"],
+                   help="sampling of the ground-truth render (facets needs a fine "
+                        "--gt-max-edge and much memory)")
     p.add_argument("--gt-max-edge", type=float, default=0.25,
                    help="ground-truth mesh refinement [m] (use ~0.04 with --sampling facets)")
     p.add_argument("--lidar-max-triangles", type=int, default=200_000)
@@ -57,7 +60,7 @@ def main(argv=None) -> int:
         t0 = time.time()
         spec = build_scene(name, seed=0)
         cap = render_ground_truth(spec, seed=0, num_rays=args.gt_rays, frames=args.gt_frames,
-                                  max_edge=args.gt_max_edge, sampling=args.sampling)
+                                  max_edge=args.gt_max_edge, sampling=args.gt_sampling)
         radar = cap.radar
         ra_ref = target_ra(cap.frames, radar)
         lidar = lidarize_scene(spec, seed=0, max_triangles=args.lidar_max_triangles)
