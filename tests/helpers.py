@@ -56,3 +56,51 @@ def direct_adc(radar, a, tau, tau_rate=None) -> np.ndarray:
 def peak_index(arr) -> tuple:
     """Index tuple of the maximum of ``arr``."""
     return np.unravel_index(int(np.argmax(arr)), np.shape(arr))
+
+
+def sphere_chi2(w, m, s, t, scale, pdf_of_dirs, n_x=20, n_phi=40, sub=12):
+    """Chi-square goodness of fit of unit directions ``w`` [n, 3] against a pdf.
+
+    Bins: ``x = log1p(scale (1 - m.w)) / log1p(2 scale)`` (dense near the lobe
+    axis ``m``) times the azimuth about ``m`` in the frame ``(s, t)``.  Expected
+    counts come from ``pdf_of_dirs(dirs [k, 3]) -> pdf [k]`` (solid-angle
+    density) integrated with a ``sub x sub`` midpoint rule per bin; bins with
+    fewer than 5 expected samples are pooled.  Returns ``(p_value, integral of
+    the pdf over the sphere)``.
+    """
+    from scipy import stats
+
+    L = np.log1p(2 * scale)
+    c = np.clip(w @ m, -1, 1)
+    x = np.log1p(scale * (1 - c)) / L
+    phi = np.mod(np.arctan2(w @ t, w @ s), 2 * np.pi)
+    ok = np.isfinite(x) & np.isfinite(phi)
+    obs, _, _ = np.histogram2d(x[ok], phi[ok], bins=[n_x, n_phi], range=[[0, 1], [0, 2 * np.pi]])
+    nx, nphi = n_x * sub, n_phi * sub
+    X, P = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(nphi) + 0.5) / nphi * 2 * np.pi,
+                       indexing="ij")
+    C = 1 - np.expm1(X * L) / scale
+    S = np.sqrt(np.clip(1 - C * C, 0, None))
+    dirs = (C[..., None] * m + S[..., None] * (np.cos(P)[..., None] * s
+                                               + np.sin(P)[..., None] * t)).reshape(-1, 3)
+    pdf = np.asarray(pdf_of_dirs(dirs), dtype=np.float64)
+    jac = L * np.exp(X * L).reshape(-1) / scale
+    dens = (pdf * jac).reshape(nx, nphi) * (1.0 / nx) * (2 * np.pi / nphi)
+    exp_bins = dens.reshape(n_x, sub, n_phi, sub).sum(axis=(1, 3))
+    integral = exp_bins.sum()
+    e = exp_bins.ravel() / integral * ok.sum()
+    o = obs.ravel()
+    assert not np.any((e == 0) & (o > 0)), "samples where the pdf is zero"
+    low = e < 5
+    e2, o2 = list(e[~low]), list(o[~low])
+    if low.any():
+        if e[low].sum() >= 5 or not e2:
+            e2.append(e[low].sum())
+            o2.append(o[low].sum())
+        else:  # pool the remainder into the smallest regular bin
+            i = int(np.argmin(e2))
+            e2[i] += e[low].sum()
+            o2[i] += o[low].sum()
+    e2, o2 = np.array(e2), np.array(o2)
+    e2 *= o2.sum() / e2.sum()
+    return stats.chisquare(o2, e2).pvalue, integral

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import integrate, special, stats
+from scipy import integrate, special
 
 from sionna_mmir.bsdf import fsd
 from sionna_mmir.bsdf._common import dr, mi
+
+from helpers import sphere_chi2
 from sionna_mmir.errors import InputValueError
 from sionna_mmir.scene.edges import EdgeIndex, find_diffracting_edges
 
@@ -191,37 +193,11 @@ def chi2_fsd(d_np, x_np, edges, s, seed=1):
                        mi.Point2f(mi.Float(u[:, 1]), mi.Float(u[:, 2])))
     w, p = to_np(wo), np.array(p)
     sv, tv, m = basis(d_np)
-    L = np.log1p(2 * scale)
     ok = p > 0
-    c = np.clip(w[ok] @ m, -1, 1)
-    xs_ = np.log1p(scale * (1 - c)) / L
-    phi = np.mod(np.arctan2(w[ok] @ tv, w[ok] @ sv), 2 * np.pi)
-    obs, _, _ = np.histogram2d(xs_, phi, bins=[N_X, N_PHI], range=[[0, 1], [0, 2 * np.pi]])
-
-    nx, nphi = N_X * SUB, N_PHI * SUB
-    X, P = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(nphi) + 0.5) / nphi * 2 * np.pi,
-                       indexing="ij")
-    C = 1 - np.expm1(X * L) / scale
-    Sn = np.sqrt(np.clip(1 - C * C, 0, None))
-    dirs = (C[..., None] * m + Sn[..., None] * (np.cos(P)[..., None] * sv
-                                                + np.sin(P)[..., None] * tv)).reshape(-1, 3)
-    pdf = np.array(fsd.pdf(d, vec(dirs), x, edges, LAM, s), dtype=np.float64)
-    jac = L * np.exp(X * L).reshape(-1) / scale
-    dens = (pdf * jac).reshape(nx, nphi) * (1.0 / nx) * (2 * np.pi / nphi)
-    exp_bins = dens.reshape(N_X, SUB, N_PHI, SUB).sum(axis=(1, 3))
-    integral = exp_bins.sum()
-
-    e = exp_bins.ravel() / integral * ok.sum()
-    o = obs.ravel()
-    assert not np.any((e == 0) & (o > 0)), "samples where the pdf is zero"
-    low = e < 5
-    e2, o2 = list(e[~low]), list(o[~low])
-    if e[low].sum() > 0:                       # pool the sparse bins (empty ones: o == 0)
-        e2.append(e[low].sum())
-        o2.append(o[low].sum())
-    e2, o2 = np.array(e2), np.array(o2)
-    e2 *= o2.sum() / e2.sum()
-    return stats.chisquare(o2, e2).pvalue, integral, ok.mean()
+    pval, integral = sphere_chi2(w[ok], m, sv, tv, scale,
+                                 lambda dirs: np.array(fsd.pdf(d, vec(dirs), x, edges, LAM, s)),
+                                 N_X, N_PHI, SUB)
+    return pval, integral, ok.mean()
 
 
 # ---------------------------------------------------------------- 4. normalisation, eval/pdf

@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from sionna_mmir.bsdf import ggx, lambertian, mmwave, vmf
 from sionna_mmir.bsdf._common import dr, mi
+
+from helpers import sphere_chi2
 
 N_SAMPLES = 200_000
 N_X, N_PHI, SUB = 20, 40, 12
@@ -53,47 +54,9 @@ def chi2_case(sample_fn, pdf_fn, theta_deg, scale, seed=1, n_uniform=2):
     wo, _ = sample_fn(wi, mi.Float(u[:, 2]), mi.Point2f(mi.Float(u[:, 0]), mi.Float(u[:, 1])))
     w = to_np(wo)
     s, t, m = frame(np.array([-wi_np[0], -wi_np[1], wi_np[2]]))
-    L = np.log1p(2 * scale)
-
-    c = np.clip(w @ m, -1, 1)
-    x = np.log1p(scale * (1 - c)) / L
-    phi = np.mod(np.arctan2(w @ t, w @ s), 2 * np.pi)
-    ok = np.isfinite(x) & np.isfinite(phi)
-    obs, _, _ = np.histogram2d(x[ok], phi[ok], bins=[N_X, N_PHI],
-                               range=[[0, 1], [0, 2 * np.pi]])
-
-    # expected: midpoint rule with SUB x SUB points per bin
-    nx, nphi = N_X * SUB, N_PHI * SUB
-    xs = (np.arange(nx) + 0.5) / nx
-    ps = (np.arange(nphi) + 0.5) / nphi * 2 * np.pi
-    X, P = np.meshgrid(xs, ps, indexing="ij")
-    one_minus_c = np.expm1(X * L) / scale
-    C = 1 - one_minus_c
-    S = np.sqrt(np.clip(1 - C * C, 0, None))
-    d = (C[..., None] * m + S[..., None] * (np.cos(P)[..., None] * s + np.sin(P)[..., None] * t))
-    d = d.reshape(-1, 3)
-    pdf = np.array(pdf_fn(vec(np.tile(wi_np, (len(d), 1))), vec(d)), dtype=np.float64)
-    jac = L * np.exp(X * L).reshape(-1) / scale
-    dens = (pdf * jac).reshape(nx, nphi) * (1.0 / nx) * (2 * np.pi / nphi)
-    exp_bins = dens.reshape(N_X, SUB, N_PHI, SUB).sum(axis=(1, 3))
-    integral = exp_bins.sum()
-
-    e = exp_bins.ravel() / integral * ok.sum()
-    o = obs.ravel()
-    assert not np.any((e == 0) & (o > 0)), "samples where the pdf is zero"
-    low = e < 5
-    e2, o2 = list(e[~low]), list(o[~low])
-    if low.any():
-        if e[low].sum() >= 5 or not e2:
-            e2.append(e[low].sum())
-            o2.append(o[low].sum())
-        else:  # pool the remainder into the smallest regular bin
-            i = int(np.argmin(e2))
-            e2[i] += e[low].sum()
-            o2[i] += o[low].sum()
-    e2, o2 = np.array(e2), np.array(o2)
-    e2 *= o2.sum() / e2.sum()
-    return stats.chisquare(o2, e2).pvalue, integral
+    return sphere_chi2(w, m, s, t, scale,
+                       lambda dirs: np.array(pdf_fn(vec(np.tile(wi_np, (len(dirs), 1))), vec(dirs))),
+                       N_X, N_PHI, SUB)
 
 
 def mm_params(sigma_over_lambda, lc_over_lambda, tau, gate=1.0):
