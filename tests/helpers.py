@@ -104,3 +104,17 @@ def sphere_chi2(w, m, s, t, scale, pdf_of_dirs, n_x=20, n_phi=40, sub=12):
     e2, o2 = np.array(e2), np.array(o2)
     e2 *= o2.sum() / e2.sum()
     return stats.chisquare(o2, e2).pvalue, integral
+
+
+def square_plate(centre, size, yaw_deg=0.0, subdiv=0):
+    """Square plate ``size`` x ``size`` [m] in the y-z plane facing -x (the radar),
+    turned by ``yaw_deg`` about +z, centred at ``centre``; ``subdiv`` 4:1 splits."""
+    import trimesh
+
+    v = np.array([[0, -1, -1], [0, 1, -1], [0, 1, 1], [0, -1, 1]], float) * size / 2
+    m = trimesh.Trimesh(v, [[0, 2, 1], [0, 3, 2]], process=False)
+    for _ in range(subdiv):
+        m = m.subdivide()
+    m.apply_transform(trimesh.transformations.rotation_matrix(np.radians(yaw_deg), [0, 0, 1]))
+    m.apply_translation(centre)
+    return m

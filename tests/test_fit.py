@@ -5,7 +5,8 @@ import dataclasses
 
 import numpy as np
 import pytest
-import trimesh
+
+from helpers import square_plate
 
 from sionna_mmir.errors import ConfigError, InputValueError
 from sionna_mmir.fit import MMIRModel, fit, load_checkpoint
@@ -18,13 +19,7 @@ OPTS = dict(num_rays=4000, max_depth=1)
 
 
 def _plate(c, size, yaw, n=1):
-    v = np.array([[0, -1, -1], [0, 1, -1], [0, 1, 1], [0, -1, 1]], float) * size / 2
-    m = trimesh.Trimesh(v, [[0, 2, 1], [0, 3, 2]], process=False)
-    for _ in range(n):
-        m = m.subdivide()
-    m.apply_transform(trimesh.transformations.rotation_matrix(np.radians(yaw), [0, 0, 1]))
-    m.apply_translation(c)
-    return m
+    return square_plate(c, size, yaw, n)
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from helpers import square_plate
+
 import sionna_mmir  # noqa: F401
 from sionna_mmir.utils.backend import init_backend
 
@@ -38,14 +40,7 @@ def _radar():
     return dataclasses.replace(RadarConfig.awr1843(), num_samples=64)
 
 
-def _plate(centre, size, yaw_deg=0.0, subdiv=0):
-    v = np.array([[0, -1, -1], [0, 1, -1], [0, 1, 1], [0, -1, 1]], float) * size / 2
-    m = trimesh.Trimesh(v, [[0, 2, 1], [0, 3, 2]], process=False)
-    for _ in range(subdiv):
-        m = m.subdivide()
-    m.apply_transform(trimesh.transformations.rotation_matrix(np.radians(yaw_deg), [0, 0, 1]))
-    m.apply_translation(centre)
-    return m
+_plate = square_plate
 
 
 def _scene(meshes, mats=None):

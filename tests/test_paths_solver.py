@@ -23,7 +23,7 @@ from sionna_mmir.errors import ConfigError, InputValueError
 from sionna_mmir.radar import RadarConfig
 from sionna_mmir.scene import load_scene
 
-from helpers import aperture_centre
+from helpers import aperture_centre, square_plate
 
 from sionna_mmir.paths import RadarPathSolver, render, to_numpy  # noqa: E402
 from sionna_mmir.processing.imaging import range_azimuth  # noqa: E402
@@ -34,13 +34,8 @@ LAM = C / F0
 
 
 def _square(centre, size, subdiv=3):
-    """Square plate in the y-z plane facing -x (towards the radar)."""
-    h = size / 2
-    v = np.array([[0, -h, -h], [0, h, -h], [0, h, h], [0, -h, h]], float) + centre
-    m = trimesh.Trimesh(v, [[0, 2, 1], [0, 3, 2]], process=False)
-    for _ in range(subdiv):
-        m = m.subdivide()
-    return m
+    """Square plate facing the radar (-x), ``subdiv`` 4:1 splits."""
+    return square_plate(centre, size, subdiv=subdiv)
 
 
 def _coherent_sum(paths, f=F0):
