@@ -592,6 +592,21 @@ class RadarPathSolver(PathSolver):
         return r / SPEED_OF_LIGHT
 
     @staticmethod
+    def _leg(elements, X, chain, pattern, pose, n, P):
+        """``(sqrt(G) / length, length)`` [n * P] of the element <-> ``X`` legs.
+
+        ``length = |X - element| + chain`` (the unfolded length on that side);
+        the gain is the element's pattern towards ``X`` in the radar frame.
+        """
+        i = dr.arange(mi.UInt32, n * P)
+        e_idx, p_idx = i // P, i % P
+        e = _gather3(elements, e_idx)
+        xp = _gather3(X, p_idx)
+        d = dr.maximum(dr.norm(xp - e), 1e-6)
+        length = d + dr.gather(mi.Float, chain, p_idx)
+        return dr.sqrt(pattern.gain(pose.to_radar((xp - e) / d), e_idx)) / length, length
+
+    @staticmethod
     def _empty(T, R, N):
         z = dr.zeros(mi.Float, 0)
         return RadarPaths(a_re=z, a_im=z, tau=z, tau_rate=None, shape=(T, R, 0),
@@ -634,21 +649,9 @@ class RadarPathSolver(PathSolver):
         X, X1 = cat3(2), cat3(3)           # Tx-leg and Rx-leg interaction points
         chain_t, chain = cat(4), cat(5)    # chain lengths on the Tx / Rx side
         rate = cat(6)
-        # per-Tx leg [T, P] and per-Rx leg [R, P]
-        ti = dr.arange(mi.UInt32, T * P)
-        t_idx, p_t = ti // P, ti % P
-        txp = _gather3(tx_w, t_idx)
-        xp = _gather3(X, p_t)
-        d_t = dr.maximum(dr.norm(xp - txp), 1e-6)
-        dt = d_t + dr.gather(mi.Float, chain_t, p_t)
-        g_t = dr.sqrt(ptx.gain(pose.to_radar((xp - txp) / d_t), t_idx)) / dt
-        ri = dr.arange(mi.UInt32, R * P)
-        r_idx, p_r = ri // P, ri % P
-        rxp = _gather3(rx_w, r_idx)
-        x1p = _gather3(X1, p_r)
-        d1 = dr.maximum(dr.norm(x1p - rxp), 1e-6)
-        L = d1 + dr.gather(mi.Float, chain, p_r)
-        g_r = dr.sqrt(prx.gain(pose.to_radar((x1p - rxp) / d1), r_idx)) / L
+        # per-Tx leg [T, P] and per-Rx leg [R, P]: sqrt(gain) / leg length, and lengths
+        g_t, dt = self._leg(tx_w, X, chain_t, ptx, pose, T, P)
+        g_r, L = self._leg(rx_w, X1, chain, prx, pose, R, P)
         # full [T, R, P]
         fi = dr.arange(mi.UInt32, T * R * P)
         t = fi // (R * P)
