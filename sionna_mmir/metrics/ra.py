@@ -20,15 +20,15 @@ from ..errors import InputValueError
 def _real_map(x, name, where):
     arr = np.asarray(x)
     if np.iscomplexobj(arr):
-        raise InputValueError(f"{where}: '{name}' is complex; pass magnitudes (np.abs)")
+        raise InputValueError(f"{where}: {name} is complex; pass magnitudes (np.abs)")
     try:
         arr = arr.astype(np.float64)
     except (TypeError, ValueError):
-        raise InputValueError(f"{where}: '{name}' is not numeric (dtype {arr.dtype})") from None
+        raise InputValueError(f"{where}: {name} is not numeric (dtype {arr.dtype})") from None
     if arr.size == 0:
-        raise InputValueError(f"{where}: '{name}' is empty")
+        raise InputValueError(f"{where}: {name} is empty")
     if not np.all(np.isfinite(arr)):
-        raise InputValueError(f"{where}: '{name}' holds NaN or Inf")
+        raise InputValueError(f"{where}: {name} holds NaN or Inf")
     return arr
 
 

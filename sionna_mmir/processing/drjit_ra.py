@@ -319,13 +319,9 @@ def _target_map(ra_target, shape, where):
     if isinstance(ra_target, mi.TensorXf):
         y = np.asarray(dr.detach(ra_target).array, dtype=np.float64).reshape(ra_target.shape)
     else:
-        y = np.asarray(ra_target)
-        if np.iscomplexobj(y):
-            raise InputValueError(f"{where}: ra_target is complex; pass magnitudes (np.abs)")
-        try:
-            y = y.astype(np.float64)
-        except (TypeError, ValueError):
-            raise InputValueError(f"{where}: ra_target is not numeric (dtype {y.dtype})") from None
+        from ..metrics.ra import _real_map
+
+        y = _real_map(ra_target, "ra_target", where)
     if y.shape != tuple(shape):
         raise InputValueError(f"{where}: shapes differ, ra_render {tuple(shape)} vs "
                               f"ra_target {y.shape}")
