@@ -26,8 +26,8 @@ def main(argv=None) -> int:
     import sionna_mmir  # noqa: F401
     from sionna_mmir.baseline import SionnaBaseline
     from sionna_mmir.compare.ground_truth import render_ground_truth
-    from sionna_mmir.compare.harness import run_side, target_ra
-    from sionna_mmir.compare.report import save_loss_curves, save_panels, write_table
+    from sionna_mmir.compare.harness import run_sides, target_ra
+    from sionna_mmir.compare.report import save_side_figures, table_rows, write_table
     from sionna_mmir.fit import MMIRModel, SionnaModel, reparam
     from sionna_mmir.processing.imaging import range_azimuth
     from sionna_mmir.scene import load_scene
@@ -70,12 +70,9 @@ def main(argv=None) -> int:
                                            sampling=args.sampling))
         sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=3,
                                          samples_per_src=args.sionna_samples))
-        sides = {}
-        for label, model in (("mmIR", mm), ("Sionna RT", sio)):
-            sides[label] = run_side(label, model, ra_ref, cap.frames[0],
-                                    iterations=args.iterations, lr=args.lr)
-            rows.append({"scene": name, "model": label, **sides[label].metrics_after,
-                         "s_per_it": sides[label].seconds_per_it})
+        sides = run_sides((("mmIR", mm), ("Sionna RT", sio)), ra_ref, cap.frames[0],
+                          iterations=args.iterations, lr=args.lr)
+        rows += table_rows(name, sides)
         # material recovery (mmIR): fitted per-vertex parameters vs the truth at the same points
         truth = true_materials(spec, seed=0, objects=lidar)
         err = {}
@@ -84,11 +81,9 @@ def main(argv=None) -> int:
             err[obj] = np.median(np.abs(fitted - tmat) / np.maximum(np.abs(tmat), 1e-12), axis=0)
         med = np.median(np.stack(list(err.values())), axis=0)
         _, ranges, az = range_azimuth(cap.frames[0], radar)
-        save_panels(os.path.join(fig_dir, f"{name}_ra.png"),
-                    {"ground truth": ra_ref, "mmIR": sides["mmIR"].ra_after,
-                     "Sionna RT": sides["Sionna RT"].ra_after}, ranges, az, title=name)
-        save_loss_curves(os.path.join(fig_dir, f"{name}_loss.png"),
-                         {k: v.history for k, v in sides.items()}, title=name)
+        save_side_figures(os.path.join(fig_dir, f"{name}_ra.png"),
+                          os.path.join(fig_dir, f"{name}_loss.png"), ("ground truth", ra_ref),
+                          sides, ranges, az, title=name)
         details[name] = {k: {"before": v.metrics_before, "after": v.metrics_after,
                              "s_per_it": v.seconds_per_it} for k, v in sides.items()}
         details[name]["mmIR_material_median_rel_error"] = dict(zip(

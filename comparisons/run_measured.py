@@ -26,7 +26,7 @@ def main(argv=None) -> int:
     from sionna_mmir.cli.commands import strongest_return
     from sionna_mmir.cli.demo import find_measured_dir, refine_point_target
     from sionna_mmir.cli.demo_fit import fit_stage
-    from sionna_mmir.compare.report import save_loss_curves, save_panels, write_table
+    from sionna_mmir.compare.report import save_side_figures, table_rows, write_table
     from sionna_mmir.processing.imaging import range_azimuth
     from sionna_mmir.processing.virtual_array import VirtualArray
 
@@ -49,14 +49,13 @@ def main(argv=None) -> int:
         r, a_deg = refine_point_target(cap.adc, radar, r, np.degrees(a), centre)
         sides = fit_stage(cap, ra, r, np.radians(a_deg), centre, iterations=args.iterations,
                           progress=False)
+        rows += table_rows(name, sides)
         for k, v in sides.items():
-            rows.append({"scene": name, "model": k, **v.metrics_after, "s_per_it": v.seconds_per_it})
             print(f"{name} {k}: RA corr {v.metrics_before['ra_correlation']:.3f} -> "
                   f"{v.metrics_after['ra_correlation']:.3f}", flush=True)
         stem = os.path.join(args.out, "figures", "measured_" + name.split("_slope")[0])
-        save_panels(stem + "_ra.png", {"measured": ra, **{k: v.ra_after for k, v in sides.items()}},
-                    ranges, az, title=name)
-        save_loss_curves(stem + "_loss.png", {k: v.history for k, v in sides.items()}, title=name)
+        save_side_figures(stem + "_ra.png", stem + "_loss.png", ("measured", ra), sides,
+                          ranges, az, title=name)
         write_table(rows, args.out, "table2_measured")
     return 0
 

@@ -172,15 +172,12 @@ def run_demo(capture=None, out="sionna_mmir_demo", overwrite=False, fit_iteratio
         with open(tmp / "summary.json", "w") as f:
             json.dump(summary, f, indent=1, default=float)
         if sides:
-            from ..compare.report import save_loss_curves, save_panels, write_table
+            from ..compare.report import save_side_figures, table_rows, write_table
 
-            save_panels(str(tmp / "fit_ra_panels.png"),
-                        {"measured": ra_meas, **{k: v.ra_after for k, v in sides.items()}},
-                        ranges, az, title="fitted corner scene")
-            save_loss_curves(str(tmp / "fit_loss.png"), {k: v.history for k, v in sides.items()})
-            write_table([{"scene": "corner", "model": k, **v.metrics_after,
-                          "s_per_it": v.seconds_per_it} for k, v in sides.items()], str(tmp),
-                        "table2")
+            save_side_figures(str(tmp / "fit_ra_panels.png"), str(tmp / "fit_loss.png"),
+                              ("measured", ra_meas), sides, ranges, az,
+                              title="fitted corner scene")
+            write_table(table_rows("corner", sides), str(tmp), "table2")
         lines = ["# sionna-mmir demo", "", f"Capture: `{cap.source}`", ""]
         if note:
             lines += [f"> {note}", ""]

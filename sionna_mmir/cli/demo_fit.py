@@ -48,7 +48,7 @@ def corner_scene_meshes(range_m: float, azimuth_rad: float, origin) -> dict:
 def fit_stage(cap, ra_meas, r_corner, az_corner, origin, *, iterations=8, rays=6000,
               sionna_samples=200_000, progress=True) -> dict:
     from ..baseline import SionnaBaseline
-    from ..compare.harness import run_side
+    from ..compare.harness import run_sides
     from ..fit import MMIRModel, SionnaModel
     from ..scene import load_scene
 
@@ -60,8 +60,5 @@ def fit_stage(cap, ra_meas, r_corner, az_corner, origin, *, iterations=8, rays=6
                    solver_options=dict(num_rays=rays, max_depth=3, cone_angle_deg=min(cone, 90.0)))
     sio = SionnaModel(SionnaBaseline(meshes, mats, radar, max_depth=3,
                                      samples_per_src=sionna_samples))
-    sides = {}
-    for label, model in (("mmIR", mm), ("Sionna RT", sio)):
-        sides[label] = run_side(label, model, ra_meas, cap.adc, iterations=iterations, lr=0.05,
-                                progress=progress)
-    return sides
+    return run_sides((("mmIR", mm), ("Sionna RT", sio)), ra_meas, cap.adc,
+                     iterations=iterations, lr=0.05, progress=progress)

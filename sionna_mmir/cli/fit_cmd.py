@@ -121,22 +121,18 @@ def _run(args, with_sionna: bool) -> int:
 
 
 def _fit_and_report(args, cap, radar, names, models, ra_ref, tmp) -> int:
-    from ..compare.harness import run_side
-    from ..compare.report import save_loss_curves, save_panels, write_table
+    from ..compare.harness import run_sides
+    from ..compare.report import save_side_figures, table_rows, write_table
     from ..processing.imaging import range_azimuth
 
-    rows, sides = [], {}
-    for label, model in models:
-        ck = os.path.join(tmp, ("fit_mmir" if label == "mmIR" else "fit_sionna") + ".h5")
-        sides[label] = run_side(label, model, ra_ref, cap.frames[0], iterations=args.iterations,
-                                lr=args.lr, seed=args.seed, checkpoint=ck)
-        rows.append({"scene": os.path.basename(str(args.capture)), "model": label,
-                     **sides[label].metrics_after, "s_per_it": sides[label].seconds_per_it})
+    ck = {label: os.path.join(tmp, ("fit_mmir" if label == "mmIR" else "fit_sionna") + ".h5")
+          for label, _ in models}
+    sides = run_sides(models, ra_ref, cap.frames[0], iterations=args.iterations, lr=args.lr,
+                      seed=args.seed, checkpoints=ck)
     _, ranges, az = range_azimuth(cap.frames[0], radar)
-    save_panels(os.path.join(tmp, "ra_panels.png"),
-                {"measured": ra_ref, **{k: v.ra_after for k, v in sides.items()}}, ranges, az)
-    save_loss_curves(os.path.join(tmp, "loss.png"), {k: v.history for k, v in sides.items()})
-    md, _ = write_table(rows, tmp, "table2")
+    save_side_figures(os.path.join(tmp, "ra_panels.png"), os.path.join(tmp, "loss.png"),
+                      ("measured", ra_ref), sides, ranges, az)
+    md, _ = write_table(table_rows(os.path.basename(str(args.capture)), sides), tmp, "table2")
     summary = {k: {"metrics_before": v.metrics_before, "metrics_after": v.metrics_after,
                    "seconds_per_iteration": v.seconds_per_it, "loss": v.history.tolist()}
                for k, v in sides.items()}

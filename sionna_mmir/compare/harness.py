@@ -69,3 +69,12 @@ def run_side(name, model, ra_ref, adc_ref, *, iterations, lr, seed=0, progress=T
     return SideResult(name=name, metrics_before=before, metrics_after=after,
                       history=res.history, seconds_per_it=res.seconds_per_it, ra_after=ra,
                       extra={"fit_wall_s": wall, "latents": res.latents})
+
+
+def run_sides(models, ra_ref, adc_ref, *, iterations, lr, seed=0, progress=True,
+              checkpoints: dict | None = None) -> dict:
+    """:func:`run_side` for each ``(label, model)``; returns ``{label: SideResult}``."""
+    return {label: run_side(label, model, ra_ref, adc_ref, iterations=iterations, lr=lr,
+                            seed=seed, progress=progress,
+                            checkpoint=(checkpoints or {}).get(label))
+            for label, model in models}

@@ -90,3 +90,17 @@ def save_loss_curves(path: str, curves: dict, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def table_rows(scene: str, sides: dict) -> list[dict]:
+    """Rows for :func:`write_table` from ``{label: SideResult}``."""
+    return [{"scene": scene, "model": k, **v.metrics_after, "s_per_it": v.seconds_per_it}
+            for k, v in sides.items()]
+
+
+def save_side_figures(ra_path: str, loss_path: str, reference: tuple, sides: dict, ranges, az,
+                      title: str = "") -> None:
+    """RA panels (``reference = (label, map)`` then each side) and the loss curves."""
+    save_panels(ra_path, {reference[0]: reference[1], **{k: v.ra_after for k, v in sides.items()}},
+                ranges, az, title=title)
+    save_loss_curves(loss_path, {k: v.history for k, v in sides.items()}, title=title)
