@@ -118,15 +118,22 @@ def point_target_paths(radar, targets, origin=None):
     return np.stack(a, -1), np.stack(tau, -1), np.stack(rate, -1)
 
 
+def named_radar(name: str, chirps: int | None = None, **kw):
+    """``RadarConfig`` by CLI name (``mmwcas`` | ``awr1843`` | ``dense``)."""
+    from ..radar.config import RadarConfig
+
+    if chirps is not None:
+        kw["num_chirps"] = chirps
+    return {"mmwcas": RadarConfig.mmwcas, "awr1843": RadarConfig.awr1843,
+            "dense": RadarConfig.dense}[name](**kw)
+
+
 def cmd_synth(args) -> int:
     from ..captures.capture import Capture
     from ..fmcw.synthesize import synthesize_adc
-    from ..radar.config import RadarConfig
 
     _check_new(args.output, args.overwrite)
-    kw = {} if args.chirps is None else {"num_chirps": args.chirps}
-    radar = {"mmwcas": RadarConfig.mmwcas, "awr1843": RadarConfig.awr1843,
-             "dense": RadarConfig.dense}[args.radar](**kw)
+    radar = named_radar(args.radar, args.chirps)
     targets = [_parse_target(t) for t in args.target]
     a, tau, rate = point_target_paths(radar, targets)
     moving = any(t[3] != 0 for t in targets)

@@ -56,9 +56,8 @@ def cmd_render(args) -> int:
 
     from ..captures.capture import Capture
     from ..paths import RadarPathSolver, to_numpy
-    from ..radar.config import RadarConfig
     from ..scene import load_scene
-    from .commands import _check_new
+    from .commands import _check_new, named_radar
 
     _check_new(args.output, args.overwrite)
     if args.frames < 1:
@@ -71,11 +70,9 @@ def cmd_render(args) -> int:
         names[stem] = path
     materials = _named(args.material, "--material", str)
     velocities = _named(args.velocity, "--velocity", lambda v: _triple(v, "--velocity"))
-    kw = {} if args.chirps is None else {"num_chirps": args.chirps}
     ori = tuple(np.radians(_triple(args.orientation, "--orientation")))
-    radar = {"mmwcas": RadarConfig.mmwcas, "awr1843": RadarConfig.awr1843,
-             "dense": RadarConfig.dense}[args.radar](
-        position=_triple(args.position, "--position"), orientation=ori, **kw)
+    radar = named_radar(args.radar, args.chirps,
+                        position=_triple(args.position, "--position"), orientation=ori)
     scene = load_scene(names, materials=materials, radar=radar)
     solver = RadarPathSolver()
     frames = []
