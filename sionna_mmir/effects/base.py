@@ -1,0 +1,110 @@
+"""The :class:`Effect` interface and its parameter description.
+
+An effect is a small differentiable module with few parameters that the base
+forward model lacks (paper: "sensor imperfections"; here also scene
+additions).  Two kinds:
+
+* ``kind = "mean"``: changes the expected ADC, ``x -> apply(x, p)``, on
+  ``(re, im)`` tensors ``[F, T, R, C, N]`` (time domain);
+* ``kind = "variance"``: adds noise power per range bin (unitary-DFT domain),
+  ``variance(x, X, p) -> [.., N]`` broadcastable to ``[F, T, R, C, N]``.
+
+Effects run in ``stage`` order: 0 scene (extra paths), 1 RF / per channel
+(gains, delays, coupling), 2 IF (filter), 3 ADC (DC, IQ, clipping).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..errors import ConfigError
+
+STAGES = {0: "scene", 1: "rf", 2: "if", 3: "adc"}
+
+
+@dataclasses.dataclass
+class ParamSpec:
+    """One named parameter block of an effect.
+
+    ==========  ===============================================================
+    ``init``    float64 initial value (its shape is the block's shape)
+    ``lower``   lower bound (scalar or same shape), ``-inf`` for none
+    ``upper``   upper bound, ``+inf`` for none
+    ``unit``    unit of the stored value, for reports
+    ==========  ===============================================================
+    """
+
+    init: np.ndarray
+    lower: object = -np.inf
+    upper: object = np.inf
+    unit: str = ""
+
+    def __post_init__(self):
+        self.init = np.atleast_1d(np.asarray(self.init, dtype=np.float64))
+        if not np.all(np.isfinite(self.init)):
+            raise ConfigError("ParamSpec: initial value holds NaN or Inf")
+        lo = np.broadcast_to(np.asarray(self.lower, np.float64), self.init.shape)
+        hi = np.broadcast_to(np.asarray(self.upper, np.float64), self.init.shape)
+        self.init = np.clip(self.init, lo, hi)
+
+    @property
+    def size(self) -> int:
+        return int(self.init.size)
+
+    def bounds(self):
+        lo = np.broadcast_to(np.asarray(self.lower, np.float64), self.init.shape).ravel()
+        hi = np.broadcast_to(np.asarray(self.upper, np.float64), self.init.shape).ravel()
+        return [(None if not np.isfinite(a) else float(a), None if not np.isfinite(b) else float(b))
+                for a, b in zip(lo, hi)]
+
+
+class Effect:
+    """Base class.  Subclasses set the class attributes and implement
+    :meth:`param_specs` and :meth:`apply` (mean) or :meth:`variance`.
+
+    ===============  ==========================================================
+    ``name``         registry key, e.g. ``"channel_gain"``
+    ``kind``         ``"mean"`` or ``"variance"``
+    ``stage``        0 scene, 1 RF, 2 IF, 3 ADC (order in the chain)
+    ``description``  one line for reports
+    ===============  ==========================================================
+    """
+
+    name = "effect"
+    kind = "mean"
+    stage = 1
+    description = ""
+
+    def param_specs(self, ctx, model: np.ndarray, residual: np.ndarray) -> dict:
+        """Parameter blocks with data-driven initial values.
+
+        ``model`` is the current mean model and ``residual`` the measured minus
+        model, complex128 ``[F, T, R, C, N]`` (time domain, normalised units).
+        Returns ``{name: ParamSpec}``; the initial values must leave the model
+        unchanged or be a good first guess from the residual.
+        """
+        raise NotImplementedError
+
+    def apply(self, x, p: dict, ctx):
+        """Mean effect: ``(re, im)`` ``[F, T, R, C, N]`` -> ``(re, im)``; ``p`` name -> ``mi.TensorXf``."""
+        raise NotImplementedError(f"{self.name} is not a mean effect")
+
+    def variance(self, x, X, p: dict, ctx):
+        """Variance effect: added noise power per range bin, broadcastable to ``[F, T, R, C, N]``.
+
+        ``x`` / ``X`` are the mean signal in the time / range (unitary DFT) domain.
+        """
+        raise NotImplementedError(f"{self.name} is not a variance effect")
+
+    def summary(self, p: dict, ctx) -> dict:
+        """Physically meaningful, JSON-serialisable view of fitted values (NumPy ``p``)."""
+        return {k: np.asarray(v).round(6).tolist() for k, v in p.items()}
+
+    def __repr__(self):
+        return f"<{type(self).__name__} {self.name}>"
+
+
+def num_params(specs: dict) -> int:
+    """Total number of real parameters of ``{name: ParamSpec}``."""
+    return int(sum(s.size for s in specs.values()))

@@ -1,0 +1,254 @@
+"""``EffectModel``: a base render plus a chain of effects, scored by a Gaussian NLL.
+
+The measured ADC ``y`` is modelled, in the range (unitary DFT) domain, as::
+
+    Y[f, t, r, c, k] ~ CN( X[f, t, r, c, k],  v[f, t, r, c, k] )
+    x = effects_mean( g * b ),        X = DFT(x)
+    v = sigma^2 + sum of variance effects
+
+with ``b`` the base model's ADC (e.g. the fitted scene's render), ``g`` one
+global complex gain and ``sigma^2`` a white noise floor (both nuisance
+parameters, always fitted, never reported as effects).  The loss is the mean
+negative log-likelihood per complex sample over the cells of a mask
+(``|Y - X|^2 / v + log v``), a proper score for both kinds of effect:
+mean effects reduce ``|Y - X|^2``, variance effects shape ``v``.
+
+Everything is normalised by the measured RMS, so parameters and losses are
+O(1) whatever the capture's units.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+from scipy.optimize import minimize
+
+from ..errors import InputValueError
+from . import ops
+from .base import Effect, ParamSpec, num_params
+from .context import EffectContext
+
+dr, mi = ops.dr, ops.mi
+
+NUISANCE = "nuisance"
+
+
+def _one_thread(fn):
+    """Run ``fn`` under :func:`.ops.single_thread` (see there for the Dr.Jit race)."""
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        with ops.single_thread():
+            return fn(*args, **kwargs)
+    return wrapped
+
+
+@dataclasses.dataclass
+class Component:
+    """An effect in the model with its parameter specs and current values."""
+
+    effect: Effect
+    specs: dict
+    values: dict
+
+    @property
+    def n_params(self) -> int:
+        return num_params(self.specs)
+
+
+class EffectModel:
+    """Base render + effects; see the module docstring.
+
+    ==============  ==========================================================
+    ``ctx``         :class:`~.context.EffectContext`
+    ``measured``    complex ``[F, T, R, C, N]`` (or ``[T, R, C, N]``) capture ADC
+    ``base``        complex, same shape: the base model's ADC (may be all zero)
+    ==============  ==========================================================
+    """
+
+    def __init__(self, ctx: EffectContext, measured, base):
+        self.ctx = ctx
+        y = ctx.check(measured, "measured ADC")
+        b = ctx.check(base, "model ADC")
+        self.scale = float(np.sqrt(np.mean(np.abs(y) ** 2)))
+        if not self.scale > 0:
+            raise InputValueError("measured ADC: all samples are zero (empty capture)")
+        y = y / self.scale
+        b = b / self.scale
+        eb = float(np.vdot(b, b).real)
+        self.has_base = eb > 0
+        self.base_gain = complex(np.vdot(b, y) / eb) if self.has_base else 1.0
+        self.y = y
+        self.b = b * self.base_gain
+        self.Y = ops.tensor(np.fft.fft(y, axis=-1, norm="ortho"))
+        self.b_t = ops.tensor(self.b)
+        r = y - self.b
+        self.nuisance = Component(
+            effect=None,
+            specs={"gain": ParamSpec([1.0, 0.0] if self.has_base else [0.0, 0.0]),
+                   "log_noise": ParamSpec([np.log(max(np.mean(np.abs(r) ** 2), 1e-12))],
+                                          lower=np.log(1e-12), upper=np.log(1e4))},
+            values={})
+        self.nuisance.values = {k: s.init.copy() for k, s in self.nuisance.specs.items()}
+        self.components: list[Component] = []
+
+    # ------------------------------------------------------------ building
+    def add(self, effect: Effect) -> Component:
+        """Add ``effect`` with data-driven initial values; returns its component."""
+        model, _ = self.mean_variance_numpy()
+        specs = effect.param_specs(self.ctx, model, self.y - model)
+        comp = Component(effect=effect, specs=specs,
+                         values={k: s.init.copy() for k, s in specs.items()})
+        self.components.append(comp)
+        return comp
+
+    def remove(self, comp: Component):
+        self.components.remove(comp)
+
+    def copy(self) -> "EffectModel":
+        """Shallow copy with independent component values (tensors are shared)."""
+        new = object.__new__(EffectModel)
+        new.__dict__.update(self.__dict__)
+        new.nuisance = _copy_comp(self.nuisance)
+        new.components = [_copy_comp(c) for c in self.components]
+        return new
+
+    # ------------------------------------------------------------- forward
+    def _forward(self, tens: dict):
+        """``(x, X, v)`` from tensors ``tens[(i, name)]`` (``i = -1`` nuisance)."""
+        g = tens[(-1, "gain")]
+        one = (1, 1, 1, 1, 1)
+        x = (ops.cmul(self.b_t, (ops.column(ops.view(g, (1, 2)), 0, one),
+                                 ops.column(ops.view(g, (1, 2)), 1, one)))
+             if self.has_base else ops.zeros_like(self.b_t))
+        order = sorted(range(len(self.components)), key=lambda i: self.components[i].effect.stage)
+        for i in order:
+            c = self.components[i]
+            if c.effect.kind == "mean":
+                x = c.effect.apply(x, _block(tens, i, c), self.ctx)
+        X = ops.dft(x)
+        v = dr.exp(ops.view(tens[(-1, "log_noise")], (1, 1, 1, 1, 1)))
+        for i in order:
+            c = self.components[i]
+            if c.effect.kind == "variance":
+                v = v + c.effect.variance(x, X, _block(tens, i, c), self.ctx)
+        return x, X, v
+
+    def _tensors(self, grad_keys=()):
+        tens = {}
+        for i, c in self._all():
+            for k, val in c.values.items():
+                t = mi.TensorXf(np.ascontiguousarray(val, np.float32))
+                if (i, k) in grad_keys:
+                    dr.enable_grad(t)
+                tens[(i, k)] = t
+        return tens
+
+    def _all(self):
+        yield -1, self.nuisance
+        yield from enumerate(self.components)
+
+    @_one_thread
+    def mean_variance_numpy(self):
+        """Current model: mean ADC ``[F, T, R, C, N]`` (time domain, normalised units)
+        and noise variance per range bin (broadcast to the same shape)."""
+        with dr.suspend_grad():
+            x, X, v = self._forward(self._tensors())
+            v = v + dr.zeros(mi.TensorXf, X[0].shape)
+        return ops.to_numpy(x), ops.to_numpy(v)
+
+    def mean_adc(self) -> np.ndarray:
+        """Mean model ADC in the capture's units, complex128 ``[F, T, R, C, N]``."""
+        return self.mean_variance_numpy()[0] * self.scale
+
+    def residual(self) -> np.ndarray:
+        """Measured minus mean model, capture units, ``[F, T, R, C, N]``."""
+        return (self.y - self.mean_variance_numpy()[0]) * self.scale
+
+    # ---------------------------------------------------------------- loss
+    def mask_tensor(self, cells=None):
+        """0/1 weights ``[F, T, R, C, N]`` from a boolean ``[F, T, R, C]`` cell mask (None: all)."""
+        F, T, R, C, N = self.ctx.shape
+        if cells is None:
+            cells = np.ones((F, T, R, C), bool)
+        cells = np.asarray(cells, bool)
+        if cells.shape != (F, T, R, C):
+            raise InputValueError(f"mask: shape {cells.shape} != cells {(F, T, R, C)}")
+        if not cells.any():
+            raise InputValueError("mask: selects no cells")
+        m = np.broadcast_to(cells[..., None], (F, T, R, C, N)).astype(np.float32)
+        return mi.TensorXf(np.ascontiguousarray(m)), float(m.sum())
+
+    @_one_thread
+    def nll(self, cells=None) -> float:
+        """Mean NLL per complex sample over ``cells`` (nats), current values."""
+        mask, n = self.mask_tensor(cells)
+        with dr.suspend_grad():
+            _, X, v = self._forward(self._tensors())
+            r2 = ops.abs2((self.Y[0] - X[0], self.Y[1] - X[1]))
+            per = r2 / v + dr.log(v)
+            return ops.item(dr.sum(per * mask, axis=None)) / n
+
+    # ----------------------------------------------------------------- fit
+    @_one_thread
+    def fit(self, trainable=None, cells=None, maxiter: int = 200, nuisance: bool = True) -> dict:
+        """Fit parameters by L-BFGS-B with Dr.Jit gradients of the masked NLL.
+
+        ``trainable``: component indices (None: all); the nuisance gain and
+        noise floor are fitted too unless ``nuisance=False``.  Returns
+        ``{"nll", "iterations", "success"}``.
+        """
+        idx = list(range(len(self.components))) if trainable is None else list(trainable)
+        keys = []
+        if nuisance:
+            keys += [(-1, k) for k in self.nuisance.specs
+                     if not (k == "gain" and not self.has_base)]
+        for i in idx:
+            keys += [(i, k) for k in self.components[i].specs]
+        if not keys:
+            return {"nll": self.nll(cells), "iterations": 0, "success": True}
+        comps = dict(self._all())
+        specs = [comps[i].specs[k] for i, k in keys]
+        sizes = [s.size for s in specs]
+        x0 = np.concatenate([np.asarray(comps[i].values[k], np.float64).ravel() for i, k in keys])
+        bounds = sum((s.bounds() for s in specs), [])
+        mask, n = self.mask_tensor(cells)
+        key_set = set(keys)
+
+        def unpack(vec):
+            out, o = {}, 0
+            for (i, k), s, m in zip(keys, specs, sizes):
+                out[(i, k)] = vec[o:o + m].reshape(s.init.shape)
+                o += m
+            return out
+
+        def fun(vec):
+            for (i, k), val in unpack(vec).items():
+                comps[i].values[k] = val
+            tens = self._tensors(grad_keys=key_set)
+            _, X, v = self._forward(tens)
+            r2 = ops.abs2((self.Y[0] - X[0], self.Y[1] - X[1]))
+            loss = dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / n
+            dr.backward(loss)
+            grad = np.concatenate([np.asarray(dr.grad(tens[key]), np.float64).ravel()
+                                   for key in keys])
+            val = ops.item(loss)
+            if not np.isfinite(val):
+                return 1e30, np.zeros_like(vec)
+            return val, np.nan_to_num(grad)
+
+        res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
+                       options={"maxiter": int(maxiter), "ftol": 1e-12, "gtol": 1e-9,
+                                "maxcor": 20})
+        for (i, k), val in unpack(res.x).items():
+            comps[i].values[k] = val
+        return {"nll": float(res.fun), "iterations": int(res.nit), "success": bool(res.success)}
+
+
+def _block(tens, i, comp):
+    return {k: tens[(i, k)] for k in comp.specs}
+
+
+def _copy_comp(c: Component) -> Component:
+    return Component(effect=c.effect, specs=c.specs,
+                     values={k: np.array(v, copy=True) for k, v in c.values.items()})
