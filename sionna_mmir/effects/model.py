@@ -93,10 +93,19 @@ class EffectModel:
         self.components: list[Component] = []
 
     # ------------------------------------------------------------ building
-    def add(self, effect: Effect) -> Component:
-        """Add ``effect`` with data-driven initial values; returns its component."""
+    def add(self, effect: Effect, cells=None) -> Component:
+        """Add ``effect`` with data-driven initial values; returns its component.
+
+        With a boolean ``cells`` mask ``[F, T, R, C]`` the initial values see
+        only those cells (the others are zeroed), so a cross-validation fold
+        never initialises from its held-out data.
+        """
         model, _ = self.mean_variance_numpy()
-        specs = effect.param_specs(self.ctx, model, self.y - model)
+        residual = self.y - model
+        if cells is not None:
+            keep = np.asarray(cells, bool)[..., None]
+            model, residual = model * keep, residual * keep
+        specs = effect.param_specs(self.ctx, model, residual)
         comp = Component(effect=effect, specs=specs,
                          values={k: s.init.copy() for k, s in specs.items()})
         self.components.append(comp)

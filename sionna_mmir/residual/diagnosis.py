@@ -1,0 +1,187 @@
+"""Residual diagnosis: rank candidate effects by held-out likelihood gain, adopt, repeat.
+
+For every candidate effect not yet adopted, and every cross-validation fold:
+
+1. the current model (adopted effects frozen, nuisance gain and noise floor
+   refitted) is fitted on the fold's training cells and scored on its
+   held-out cells: ``NLL_0``;
+2. the candidate is added on top (initialised from the training cells only),
+   fitted on the training cells, and scored on the held-out cells: ``NLL_1``.
+
+Its held-out gain is ``sum over folds (NLL_0 - NLL_1)`` in nats (total over
+held-out complex samples); its score subtracts ``penalty`` nats per real
+parameter (AIC-like, default 1).  Folds hold out whole (frame, Tx, Rx, chirp)
+cells, so an effect is only credited for what it predicts on channels /
+chirps / frames it never saw.  The best candidate is adopted when its score
+is positive and its gain exceeds ``min_gain`` nats per held-out sample; then
+all adopted effects are refitted jointly on all cells, and the next round
+starts.  It stops when nothing helps, and reports what stays unexplained.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..effects.model import EffectModel
+from .analysis import json_view, residual_domains
+from .scoring import score
+
+
+@dataclasses.dataclass
+class CandidateScore:
+    """Held-out result of one candidate in one round."""
+
+    name: str
+    n_params: int
+    gain: float                 # total held-out NLL reduction [nats]
+    gain_per_sample: float      # per held-out complex sample [nats]
+    score: float                # gain - penalty * n_params
+    fold_gains: list
+
+    def to_dict(self) -> dict:
+        return {k: (round(v, 6) if isinstance(v, float) else v)
+                for k, v in dataclasses.asdict(self).items()}
+
+
+@dataclasses.dataclass
+class Adoption:
+    """One adopted effect: its ranking round, parameters and errors before / after."""
+
+    name: str
+    round: int
+    candidates: list
+    before: dict
+    after: dict
+    params: dict
+    residual_before: np.ndarray = None
+    residual_after: np.ndarray = None
+
+
+@dataclasses.dataclass
+class Diagnosis:
+    """Result of :func:`diagnose`."""
+
+    model: EffectModel
+    first: dict                 # metrics of the base model (nuisance fitted)
+    final: dict                 # metrics after all adoptions
+    adoptions: list
+    last_candidates: list       # the ranking that stopped the loop
+    unexplained: dict           # residual domains of the final model
+    settings: dict
+
+    @property
+    def adopted(self) -> list:
+        return [a.name for a in self.adoptions]
+
+
+def cv_folds(shape, k: int = 3, seed: int = 0) -> list:
+    """``k`` boolean training masks over cells ``shape = (F, T, R, C)``.
+
+    Cells are dealt to folds at random; each training mask keeps every Tx
+    and every Rx (re-dealt otherwise) so per-Tx / per-Rx effects are
+    estimable in every fold.
+    """
+    F, T, R, C = shape
+    n = F * T * R * C
+    if k < 2 or n < k:
+        raise ConfigError(f"cv_folds: need 2 <= folds <= cells ({n}), got {k}")
+    rng = np.random.default_rng(seed)
+    for _ in range(100):
+        fold = rng.permutation(np.arange(n) % k).reshape(shape)
+        trains = [fold != i for i in range(k)]
+        if all(t.any(axis=(0, 2, 3)).all() and t.any(axis=(0, 1, 3)).all() for t in trains):
+            return trains
+    return trains
+
+
+def _current_metrics(model: EffectModel) -> dict:
+    mean, var = model.mean_variance_numpy()
+    s = model.scale
+    return score(model.ctx, model.y * s, mean * s, var * s ** 2)
+
+
+def _held_out(model: EffectModel, effect, train, maxiter) -> tuple:
+    """``(NLL_0, NLL_1)`` totals on ``~train`` for the model without / with ``effect``."""
+    test = ~train
+    n_test = float(test.sum()) * model.ctx.shape[-1]
+    base = model.copy()
+    base.fit(trainable=[], cells=train, maxiter=maxiter)
+    nll0 = base.nll(test) * n_test
+    cand = base.copy()
+    cand.add(effect, cells=train)
+    cand.fit(trainable=[len(cand.components) - 1], cells=train, maxiter=maxiter)
+    nll1 = cand.nll(test) * n_test
+    return nll0, nll1, n_test
+
+
+def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
+                    maxiter: int = 150, progress=None) -> list:
+    """Held-out scores of ``candidates`` on top of ``model``, best first."""
+    out = []
+    for eff in candidates:
+        gains, n_tot = [], 0.0
+        for train in folds:
+            nll0, nll1, n_test = _held_out(model, eff, train, maxiter)
+            gains.append(nll0 - nll1)
+            n_tot += n_test
+        probe = model.copy()
+        n_params = probe.add(eff).n_params
+        gain = float(np.sum(gains))
+        out.append(CandidateScore(name=eff.name, n_params=int(n_params), gain=gain,
+                                  gain_per_sample=gain / max(n_tot, 1.0),
+                                  score=gain - penalty * n_params,
+                                  fold_gains=[float(g) for g in gains]))
+        if progress is not None:
+            progress(eff.name)
+    return sorted(out, key=lambda c: c.score, reverse=True)
+
+
+def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6,
+             penalty: float = 1.0, min_gain: float = 1e-3, seed: int = 0,
+             maxiter: int = 150, progress=None) -> Diagnosis:
+    """The adopt-until-nothing-helps loop; see the module docstring.
+
+    ``candidates``: effect instances (e.g. :func:`~sionna_mmir.effects.library.default_library`).
+    An effect with ``repeatable = True`` stays a candidate after adoption
+    (e.g. a second missing scatterer).  ``progress(name)`` is called after
+    each candidate is scored.
+    """
+    candidates = list(candidates)
+    if not candidates:
+        raise ConfigError("diagnose: no candidate effects given")
+    names = [c.name for c in candidates]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"diagnose: candidate names repeat: {names}")
+    model.fit(trainable=[], maxiter=maxiter)
+    first = _current_metrics(model)
+    trains = cv_folds(model.ctx.shape[:4], folds, seed)
+    adoptions, ranking = [], []
+    pool = list(candidates)
+    for rnd in range(max_rounds):
+        if not pool:
+            break
+        ranking = rank_candidates(model, pool, trains, penalty, maxiter, progress)
+        best = ranking[0]
+        if best.score <= 0 or best.gain_per_sample < min_gain:
+            break
+        eff = next(c for c in pool if c.name == best.name)
+        before = _current_metrics(model)
+        res_before = model.residual()
+        comp = model.add(eff)
+        model.fit(maxiter=2 * maxiter)
+        after = _current_metrics(model)
+        adoptions.append(Adoption(name=eff.name, round=rnd, candidates=ranking, before=before,
+                                  after=after, params=eff.summary(comp.values, model.ctx),
+                                  residual_before=res_before, residual_after=model.residual()))
+        if not getattr(eff, "repeatable", False):
+            pool = [c for c in pool if c is not eff]
+        ranking = []
+    final = _current_metrics(model)
+    mean = model.mean_adc()
+    unexplained = json_view(residual_domains(model.ctx, model.y * model.scale, mean))
+    settings = {"folds": folds, "max_rounds": max_rounds, "penalty_nats_per_param": penalty,
+                "min_gain_nats_per_sample": min_gain, "seed": seed, "candidates": names}
+    return Diagnosis(model=model, first=first, final=final, adoptions=adoptions,
+                     last_candidates=ranking, unexplained=unexplained, settings=settings)
