@@ -70,6 +70,8 @@ class Diagnosis:
     last_candidates: list       # the ranking that stopped the loop
     unexplained: dict           # residual domains of the final model
     settings: dict
+    first_mean: np.ndarray = None   # base model ADC (nuisance fitted), capture units
+    first_variance: np.ndarray = None
 
     @property
     def adopted(self) -> list:
@@ -156,6 +158,7 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6
         raise ConfigError(f"diagnose: candidate names repeat: {names}")
     model.fit(trainable=[], maxiter=maxiter)
     first = _current_metrics(model)
+    first_mean, first_var = model.mean_variance_numpy()
     trains = cv_folds(model.ctx.shape[:4], folds, seed)
     adoptions, ranking = [], []
     pool = list(candidates)
@@ -184,4 +187,6 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6
     settings = {"folds": folds, "max_rounds": max_rounds, "penalty_nats_per_param": penalty,
                 "min_gain_nats_per_sample": min_gain, "seed": seed, "candidates": names}
     return Diagnosis(model=model, first=first, final=final, adoptions=adoptions,
-                     last_candidates=ranking, unexplained=unexplained, settings=settings)
+                     last_candidates=ranking, unexplained=unexplained, settings=settings,
+                     first_mean=first_mean * model.scale,
+                     first_variance=first_var * model.scale ** 2)
