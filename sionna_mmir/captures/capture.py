@@ -65,7 +65,7 @@ class Capture:
                 f"the radar's [tx, rx, chirp, sample] = {self.radar.adc_shape}")
         if not np.iscomplexobj(arr):
             arr = arr.astype(np.complex64)
-        arr = arr.astype(np.complex64, copy=False)
+        arr = np.ascontiguousarray(arr, dtype=np.complex64)
         if not np.all(np.isfinite(arr.view(np.float32))):
             raise InputValueError(f"Capture ({self.source}): ADC holds NaN or Inf samples")
         self.frames = arr

@@ -8,7 +8,8 @@ Both read any capture ``load_capture`` reads (TI ``.mat``, DCA1000 ``.bin``,
 ColoRadar run folder + ``--frame``, HDF5) and PLY/OBJ meshes placed in the
 radar's scene frame (``--position`` / ``--orientation`` give the radar pose),
 and write into a report folder: ``summary.json``, ``report.md``, PNGs and the
-fit checkpoint(s) ``*.h5`` (``--resume`` continues a killed fit).
+fit checkpoint(s) ``fit_*.h5`` (``--resume`` continues a killed fit) and the
+fitted models' renders ``model_*.h5`` (the input of ``sionna-mmir residual``).
 """
 from __future__ import annotations
 
@@ -129,6 +130,7 @@ def _fit_and_report(args, cap, radar, names, models, ra_ref, tmp) -> int:
           for label, _ in models}
     sides = run_sides(models, ra_ref, cap.frames[0], iterations=args.iterations, lr=args.lr,
                       seed=args.seed, checkpoints=ck)
+    _save_model_renders(models, sides, radar, tmp, args.capture)
     _, ranges, az = range_azimuth(cap.frames[0], radar)
     save_side_figures(os.path.join(tmp, "ra_panels.png"), os.path.join(tmp, "loss.png"),
                       ("measured", ra_ref), sides, ranges, az)
@@ -150,6 +152,20 @@ def _fit_and_report(args, cap, radar, names, models, ra_ref, tmp) -> int:
               f"{v.metrics_after['ra_correlation']:.3f}, {v.seconds_per_it:.2f} s/iteration")
     print(f"wrote {args.out}/")
     return 0
+
+
+def _save_model_renders(models, sides, radar, folder, capture) -> None:
+    """``model_<side>.h5``: each fitted model's render as a project HDF5 capture
+    (the base model of ``sionna-mmir residual``)."""
+    from ..captures.capture import Capture
+    from ..paths.render import to_numpy
+
+    for label, model in models:
+        adc, _ = model.render(sides[label].extra["latents"], seed=9001)
+        stem = "model_mmir" if label == "mmIR" else "model_sionna"
+        Capture(frames=to_numpy(adc), radar=radar, source="sionna-mmir fit",
+                metadata={"model": label, "capture": str(capture)}).save(
+            os.path.join(folder, stem + ".h5"), overwrite=True)
 
 
 def cmd_fit(args) -> int:

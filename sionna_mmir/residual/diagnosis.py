@@ -23,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, InputValueError
 from ..effects.model import EffectModel
 from .analysis import json_view, residual_domains
 from .scoring import score
@@ -157,6 +157,10 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6
     if len(set(names)) != len(names):
         raise ConfigError(f"diagnose: candidate names repeat: {names}")
     model.fit(trainable=[], maxiter=maxiter)
+    r = model.residual()
+    if not np.sum(np.abs(r) ** 2) > 1e-12 * np.sum(np.abs(model.y * model.scale) ** 2):
+        raise InputValueError("diagnose: empty residual: the model already reproduces the "
+                              "capture exactly (is the model the capture itself?)")
     first = _current_metrics(model)
     first_mean, first_var = model.mean_variance_numpy()
     trains = cv_folds(model.ctx.shape[:4], folds, seed)
