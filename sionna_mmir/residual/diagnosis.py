@@ -104,32 +104,33 @@ def _current_metrics(model: EffectModel) -> dict:
     return score(model.ctx, model.y * s, mean * s, var * s ** 2)
 
 
-def _held_out(model: EffectModel, effect, train, maxiter) -> tuple:
-    """``(NLL_0, NLL_1)`` totals on ``~train`` for the model without / with ``effect``."""
-    test = ~train
-    n_test = float(test.sum()) * model.ctx.shape[-1]
-    base = model.copy()
-    base.fit(trainable=[], cells=train, maxiter=maxiter)
-    nll0 = base.nll(test) * n_test
-    cand = base.copy()
-    cand.add(effect, cells=train)
-    cand.fit(trainable=[len(cand.components) - 1], cells=train, maxiter=maxiter)
-    nll1 = cand.nll(test) * n_test
-    return nll0, nll1, n_test
+def _fold_bases(model: EffectModel, folds, maxiter) -> list:
+    """Per fold: the current model refitted (nuisance only) on the training cells,
+    with its held-out NLL total and the number of held-out samples."""
+    out = []
+    for train in folds:
+        test = ~train
+        n_test = float(test.sum()) * model.ctx.shape[-1]
+        base = model.copy()
+        base.fit(trainable=[], cells=train, maxiter=maxiter)
+        out.append((train, base, base.nll(test) * n_test, n_test))
+    return out
 
 
 def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
                     maxiter: int = 150, progress=None) -> list:
     """Held-out scores of ``candidates`` on top of ``model``, best first."""
+    bases = _fold_bases(model, folds, maxiter)
     out = []
     for eff in candidates:
         gains, n_tot = [], 0.0
-        for train in folds:
-            nll0, nll1, n_test = _held_out(model, eff, train, maxiter)
-            gains.append(nll0 - nll1)
+        for train, base, nll0, n_test in bases:
+            cand = base.copy()
+            cand.add(eff, cells=train)
+            cand.fit(trainable=[len(cand.components) - 1], cells=train, maxiter=maxiter)
+            gains.append(nll0 - cand.nll(~train) * n_test)
             n_tot += n_test
-        probe = model.copy()
-        n_params = probe.add(eff).n_params
+        n_params = cand.components[-1].n_params
         gain = float(np.sum(gains))
         out.append(CandidateScore(name=eff.name, n_params=int(n_params), gain=gain,
                                   gain_per_sample=gain / max(n_tot, 1.0),

@@ -1,0 +1,255 @@
+"""Tx -> Rx leakage (antenna coupling, on-chip leakage) as short-delay paths.
+
+Every transmitter leaks into every receiver over a few very short paths
+(package / board coupling between the antennas, on-chip LO leakage): tones at
+ranges of a few centimetres that are the same in every chirp and frame (TI's
+"antenna coupling" calibration, ColoRadar's ``coupling_calib.txt``)::
+
+    x[f, t, r, c, k] += sum_m A_m u_t w_r B[chip_t, chip_r] exp(j 2 pi (f0 + S t_k) tau_m)
+
+with ``K`` (default 2) delays ``tau_m`` shared by all channels (equivalent
+ranges ``c tau / 2`` of 0.02 - 0.5 m, i.e. ``tau`` ~ 0.1 - 3.5 ns), complex
+amplitudes ``A_m``, separable per-Tx and per-Rx complex factors ``u_t`` /
+``w_r`` and, for a multi-chip radar, a complex factor ``B`` per (Tx chip, Rx
+chip) block (``ctx.tx_chip`` / ``ctx.rx_chip``).  There is no free
+parameter per virtual (tx, rx) channel, so a held-out channel is predicted
+from the others.
+
+The stored amplitudes are referred to the centre frequency ``f_c``:
+``a_m = A_m exp(j 2 pi f_c tau_m)``, so the model computes
+``a_m exp(j 2 pi S (t_k - t_c) tau_m)`` and a change of ``tau_m`` moves the
+tone without rotating it (no ``1 / f_c`` ripple of the loss in ``tau``).
+``A_m`` is reported by :meth:`Coupling.summary`; the product
+``A_m u_t w_r B`` is invariant to the (unconstrained) scale / phase gauge
+between the factors.
+
+Parameters: ``delay`` ``[K]`` [ns], ``amp`` ``[K, 2]``, ``tx`` ``[T, 2]``,
+``rx`` ``[R, 2]`` (re, im; normalised units) and, with more than one chip,
+``chip`` ``[n_chips^2, 2]``: ``3 K + 2 (T + R)`` (+ ``2 n_chips^2``) numbers.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import ConfigError
+from ...processing.range_fft import range_fft
+from ...radar.config import SPEED_OF_LIGHT
+from .. import ops
+from ..base import Effect, ParamSpec
+from .scatterer import static_view
+
+dr, mi = ops.dr, ops.mi
+NS = 1e-9
+
+
+def _centre_time(radar) -> float:
+    return (radar.center_frequency - radar.start_frequency) / radar.slope
+
+
+def tone_phase(ctx, tau) -> np.ndarray:
+    """Referred phase ``2 pi S (t_k - t_c) tau`` ``[..., N]`` for delays ``tau [...]`` [s]."""
+    radar = ctx.radar
+    tk = ctx.fast_time - _centre_time(radar)
+    return 2 * np.pi * radar.slope * np.asarray(tau, np.float64)[..., None] * tk
+
+
+def _chip_pair(ctx) -> np.ndarray:
+    """Block index ``chip_t * n_chips + chip_r`` ``[T, R]``."""
+    return ctx.tx_chip[:, None] * ctx.num_chips + ctx.rx_chip[None, :]
+
+
+def _cplx(a) -> np.ndarray:
+    a = np.asarray(a, np.float64)
+    return a[..., 0] + 1j * a[..., 1]
+
+
+def _pairs(z) -> np.ndarray:
+    z = np.asarray(z)
+    return np.stack([z.real, z.imag], axis=-1)
+
+
+def channel_factor(values: dict, ctx) -> np.ndarray:
+    """``u_t w_r B[chip_t, chip_r]`` ``[T, R]`` complex from parameter values."""
+    g = _cplx(values["tx"])[:, None] * _cplx(values["rx"])[None, :]
+    if "chip" in values:
+        g = g * _cplx(values["chip"])[_chip_pair(ctx)]
+    return g
+
+
+def coupling_signal(values: dict, ctx) -> np.ndarray:
+    """Fitted leakage in the time domain, complex ``[T, R, N]`` (normalised units)."""
+    tau = np.asarray(values["delay"], np.float64) * NS
+    tones = _cplx(values["amp"])[:, None] * np.exp(1j * tone_phase(ctx, tau))   # [K, N]
+    return channel_factor(values, ctx)[..., None] * tones.sum(axis=0)
+
+
+def coupling_profile(comp_values: dict, ctx, scale: float = 1.0, n_bins: int | None = None):
+    """Fitted coupling per (tx, rx) in the range-FFT domain, complex ``[T, R, n_bins]``.
+
+    The convention of ColoRadar's ``coupling_calib.txt`` (as read by
+    :func:`sionna_mmir.captures.coloradar_calib.read_coupling_calib` and
+    subtracted by :func:`sionna_mmir.processing.calibration.subtract_coupling`):
+    the first ``n_bins`` bins (default all) of the unwindowed, unnormalised
+    ``num_samples``-point range FFT of one chirp.  ``comp_values`` are a
+    component's values (``EffectModel.components[i].values``) and ``scale``
+    converts normalised units to capture units (``EffectModel.scale``).
+    """
+    spec, _ = range_fft(coupling_signal(comp_values, ctx) * scale, ctx.radar, window="rect")
+    n = spec.shape[-1] if n_bins is None else int(n_bins)
+    if n < 1 or n > spec.shape[-1]:
+        raise ConfigError(f"coupling_profile: n_bins must be in 1..{spec.shape[-1]}, got {n_bins}")
+    return spec[..., :n]
+
+
+# ----------------------------------------------------------------- init
+def _project(z, tones):
+    """LS amplitudes of ``tones [K, N]`` in every channel of ``z [C, N]`` -> ``[C, K]``."""
+    h, *_ = np.linalg.lstsq(tones.T, z.T, rcond=None)
+    return h.T
+
+
+def _greedy_delays(z, ctx, K, taus):
+    """Greedy (orthogonal matching pursuit) choice of ``K`` delays from a grid.
+
+    ``z [C, N]`` channels, ``taus [G]`` candidate delays [s]; at each step the
+    candidate with the largest energy (summed over channels) in the current
+    residual is picked, then all amplitudes are re-fitted jointly.
+    """
+    atoms = np.exp(1j * tone_phase(ctx, taus))                                # [G, N]
+    norm = np.sum(np.abs(atoms) ** 2, axis=1)
+    chosen = []
+    resid = z
+    for _ in range(K):
+        score = np.sum(np.abs(np.conj(atoms) @ resid.T) ** 2, axis=1) / norm
+        for j in chosen:          # keep picks half a range bin apart
+            score[np.abs(taus - taus[j]) < 0.5 / ctx.radar.bandwidth] = -1.0
+        chosen.append(int(np.argmax(score)))
+        tones = atoms[chosen]
+        resid = z - _project(z, tones) @ tones
+    return np.array(sorted(taus[chosen]))
+
+
+def factorise(h, ctx, weight=None, n_iter: int = 50):
+    """ALS split of ``h [T, R, K]`` into ``A_m u_t w_r B[chip_t, chip_r]``.
+
+    ``weight [T, R]`` (0/1) leaves unobserved channels out.  Returns ``(A
+    [K], u [T], w [R], B [n_chips^2])`` with ``u`` and ``w`` of unit RMS and
+    ``u_0``, ``w_0`` real positive (``B[0]`` = 1 with several chips).
+    """
+    T, R, K = h.shape
+    W = np.ones((T, R, 1)) if weight is None else np.asarray(weight, np.float64)[..., None]
+    pair = _chip_pair(ctx)
+    nb = ctx.num_chips ** 2
+    u, w, B = np.ones(T, complex), np.ones(R, complex), np.ones(nb, complex)
+    A = (h * W).sum(axis=(0, 1)) / max(W.sum(), 1.0)
+
+    def ls(model, axes):
+        num = (W * np.conj(model) * h).sum(axis=axes)
+        den = (W * np.abs(model) ** 2 + 0 * h.real).sum(axis=axes)
+        return np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
+
+    def ls_block(model):
+        num = (W * np.conj(model) * h).sum(axis=-1).ravel()
+        den = (W * np.abs(model) ** 2 + 0 * h.real).sum(axis=-1).ravel()
+        idx = pair.ravel()
+        nu = np.bincount(idx, num.real, nb) + 1j * np.bincount(idx, num.imag, nb)
+        de = np.bincount(idx, den, nb)
+        return np.where(de > 0, nu / np.where(de > 0, de, 1.0), 1.0)
+
+    for _ in range(n_iter):
+        g = B[pair][..., None]
+        u = ls(A * w[None, :, None] * g, (1, 2))
+        w = ls(A * u[:, None, None] * g, (0, 2))
+        if nb > 1:
+            B = ls_block(A * (u[:, None] * w[None, :])[..., None])
+        A = ls((u[:, None] * w[None, :] * B[pair])[..., None], (0, 1))
+    su = np.sqrt(np.mean(np.abs(u) ** 2)) * np.exp(1j * np.angle(u[0]))
+    sw = np.sqrt(np.mean(np.abs(w) ** 2)) * np.exp(1j * np.angle(w[0]))
+    sb = B[0] if nb > 1 and abs(B[0]) > 0 else 1.0
+    return A * su * sw * sb, u / su, w / sw, B / sb
+
+
+# --------------------------------------------------------------- effect
+class Coupling(Effect):
+    """Tx -> Rx leakage: ``K`` short-delay paths, separable channel factors.
+
+    ================  ========================================================
+    ``num_paths``     ``K``, number of leakage delays (default 2)
+    ``min_range``     smallest equivalent range ``c tau / 2`` [m] (0.02)
+    ``max_range``     largest equivalent range [m] (0.5)
+    ================  ========================================================
+    """
+
+    name = "coupling"
+    kind = "mean"
+    stage = 1
+    description = "Tx->Rx antenna / on-chip leakage (short-delay paths)"
+
+    def __init__(self, num_paths: int = 2, min_range: float = 0.02, max_range: float = 0.5):
+        if isinstance(num_paths, bool) or int(num_paths) != num_paths or num_paths < 1:
+            raise ConfigError(f"Coupling: num_paths must be a positive integer, got {num_paths!r}")
+        if not np.isfinite(min_range) or min_range < 0:
+            raise ConfigError(f"Coupling: min_range must be >= 0 m, got {min_range}")
+        if not np.isfinite(max_range) or max_range <= min_range:
+            raise ConfigError(f"Coupling: max_range must be > min_range ({min_range} m), "
+                              f"got {max_range}")
+        self.num_paths = int(num_paths)
+        self.min_range = float(min_range)
+        self.max_range = float(max_range)
+
+    def _delay_bounds(self):
+        return 2 * self.min_range / SPEED_OF_LIGHT, 2 * self.max_range / SPEED_OF_LIGHT
+
+    def param_specs(self, ctx, model, residual):
+        radar = ctx.radar
+        T, R, N = radar.num_tx, radar.num_rx, radar.num_samples
+        lo, hi = self._delay_bounds()
+        taus = np.linspace(lo, hi, max(8, int(np.ceil((hi - lo) * radar.bandwidth * 16)) + 1))
+        z = static_view(residual)                                   # static: frame/chirp mean
+        seen = np.any(z != 0, axis=-1)                              # observed channels
+        z = z.reshape(T * R, N)
+        tau = _greedy_delays(z, ctx, self.num_paths, taus)
+        h = _project(z, np.exp(1j * tone_phase(ctx, tau))).reshape(T, R, -1)
+        A, u, w, B = factorise(h, ctx, seen)
+        specs = {"delay": ParamSpec(tau / NS, lower=lo / NS, upper=hi / NS, unit="ns"),
+                 "amp": ParamSpec(_pairs(A), unit="normalised (referred to f_c)"),
+                 "tx": ParamSpec(_pairs(u), unit="complex factor"),
+                 "rx": ParamSpec(_pairs(w), unit="complex factor")}
+        if ctx.num_chips > 1:
+            specs["chip"] = ParamSpec(_pairs(B), unit="complex factor")
+        return specs
+
+    def apply(self, x, p, ctx):
+        radar = ctx.radar
+        T, R, N = radar.num_tx, radar.num_rx, radar.num_samples
+        K = self.num_paths
+        tk = ops.tensor((2 * np.pi * radar.slope * NS
+                         * (ctx.fast_time - _centre_time(radar))).reshape(1, N))
+        phase = ops.view(p["delay"], (K, 1)) * tk                               # [K, N]
+        tone = ops.cmul(ops.cis(phase), (ops.column(p["amp"], 0, (K, 1)),
+                                         ops.column(p["amp"], 1, (K, 1))))
+        tone = (dr.sum(tone[0], axis=0), dr.sum(tone[1], axis=0))             # [N]
+        tone = (ops.view(tone[0], (1, 1, 1, 1, N)), ops.view(tone[1], (1, 1, 1, 1, N)))
+        st, sr = (1, T, 1, 1, 1), (1, 1, R, 1, 1)
+        g = ops.cmul((ops.column(p["tx"], 0, st), ops.column(p["tx"], 1, st)),
+                     (ops.column(p["rx"], 0, sr), ops.column(p["rx"], 1, sr)))
+        if "chip" in p:
+            idx = mi.UInt32(_chip_pair(ctx).ravel().astype(np.uint32))
+            shape = (1, T, R, 1, 1)
+            b = tuple(ops.mi.TensorXf(dr.gather(mi.Float, p["chip"].array, idx * 2 + j), shape)
+                      for j in range(2))
+            g = ops.cmul(g, b)
+        return ops.cadd(x, ops.cmul(g, tone))
+
+    def summary(self, p, ctx):
+        tau = np.asarray(p["delay"], np.float64) * NS
+        A = _cplx(p["amp"]) * np.exp(-2j * np.pi * ctx.radar.center_frequency * tau)
+        g = channel_factor(p, ctx)
+        lvl = np.abs(g)[..., None] * np.abs(A)
+        return {"delay_ns": (tau / NS).round(4).tolist(),
+                "range_m": (tau * SPEED_OF_LIGHT / 2).round(4).tolist(),
+                "amplitude_abs": np.abs(A).round(6).tolist(),
+                "amplitude_phase_deg": np.degrees(np.angle(A)).round(2).tolist(),
+                "channel_level_db_range": [
+                    round(float(20 * np.log10(max(lvl.min(), 1e-30))), 2),
+                    round(float(20 * np.log10(max(lvl.max(), 1e-30))), 2)]}

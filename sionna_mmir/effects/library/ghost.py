@@ -1,0 +1,265 @@
+"""Multipath ghost of the strongest scatterer via a flat surface (floor, wall).
+
+A point target ``p`` next to a flat surface (plane through ``q`` with unit
+normal ``n``, radar frame) is also reached over the surface.  With the image
+``p' = p - 2 ((p - q) . n) n`` of the target across the plane (method of
+images; exact per (tx, rx) pair)::
+
+    tau_d   = (|p  - tx_t| + |p  - rx_r|) / c     direct (already in the model)
+    tau_1a  = (|p' - tx_t| + |p  - rx_r|) / c     Tx -> surface -> target -> Rx
+    tau_1b  = (|p  - tx_t| + |p' - rx_r|) / c     Tx -> target -> surface -> Rx
+    tau_2   = (|p' - tx_t| + |p' - rx_r|) / c     Tx -> surface -> target -> surface -> Rx
+
+    x += a [Gamma (e^{j2pi(f0+S t_k) tau_1a} + e^{j2pi(f0+S t_k) tau_1b})
+            + Gamma^2 e^{j2pi(f0+S t_k) tau_2}]
+
+(the classic "multipath ghost" of automotive radar: a ghost at the mean of
+the direct and mirrored ranges from the mixed paths and one at the mirrored
+range from the double bounce).  The target ``p`` is the model's strongest
+point (range-azimuth peak of the model ADC, refined, found once in
+:meth:`MultipathGhost.param_specs`); its complex amplitude ``a`` is the LS
+amplitude of that point in the model signal the effect is applied to (so the
+ghost follows the model's gain).  ``Gamma`` is the surface's complex
+reflection coefficient (spreading-loss differences are folded into it).
+
+Parameters: ``offset`` ``[1]`` [m], a shift of the plane along its normal
+(``q -> q + offset n``), and ``gamma`` ``[2]`` (re, im) -- 3 numbers.
+``gamma`` is referred to the carrier phase of the extra path length at the
+centre frequency: ``gamma = Gamma exp(j 2 pi f_c (|p'| - |p|) / c)`` so the
+plane offset moves the ghost without rotating it; then the double bounce has
+exactly ``gamma^2`` (see :func:`ghost_signal_np`).  The summary reports the
+physical ``Gamma``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import ConfigError
+from .. import ops
+from ..base import Effect, ParamSpec
+from .scatterer import (C0, DrGeometry, carrier_phase, dr_ref_phase, has_elevation_aperture,
+                        ref_phase_np, static_view, strongest_point)
+
+dr, mi = ops.dr, ops.mi
+
+#: candidate surface families for the default search: (name, unit normal, sign of
+#: the plane's offset from the origin along -n); the plane is ``q = -d n``.
+FAMILIES = (("floor", (0.0, 0.0, 1.0)), ("ceiling", (0.0, 0.0, -1.0)),
+            ("left_wall", (0.0, -1.0, 0.0)), ("right_wall", (0.0, 1.0, 0.0)))
+
+
+def check_plane(plane):
+    """``(q [3], n [3] unit)`` from ``(point, normal)``; ConfigError naming ``plane``."""
+    try:
+        q, n = (np.asarray(v, np.float64).reshape(3) for v in plane)
+    except (TypeError, ValueError):
+        raise ConfigError(f"MultipathGhost: plane must be (point [3], normal [3]) in metres, "
+                          f"got {plane!r}") from None
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(n))) or np.linalg.norm(n) < 1e-9:
+        raise ConfigError(f"MultipathGhost: plane needs a finite point and a non-zero normal, "
+                          f"got {plane!r}")
+    return q, n / np.linalg.norm(n)
+
+
+def image_point(p, q, n, offset=0.0) -> np.ndarray:
+    """Mirror image of ``p [..., 3]`` across the plane through ``q + offset n`` with normal ``n``."""
+    d = np.sum((np.asarray(p) - q) * n, axis=-1) - np.asarray(offset)
+    return np.asarray(p) - 2.0 * d[..., None] * n
+
+
+def ghost_delays(radar, p, q, n, offset=0.0) -> np.ndarray:
+    """Exact delays ``[4, T, R]`` [s]: direct, Tx-side bounce, Rx-side bounce, double."""
+    pi = image_point(p, q, n, offset)
+    dt = np.linalg.norm(p - radar.tx_positions, axis=1)[:, None]
+    dr_ = np.linalg.norm(p - radar.rx_positions, axis=1)[None, :]
+    it = np.linalg.norm(pi - radar.tx_positions, axis=1)[:, None]
+    ir = np.linalg.norm(pi - radar.rx_positions, axis=1)[None, :]
+    return np.stack([dt + dr_, it + dr_, dt + ir, it + ir]) / C0
+
+
+def ghost_templates(ctx, p, img):
+    """Referred unit-amplitude signals of the single and double bounces, ``[..., T, R, N]`` each.
+
+    ``img [..., 3]`` image points; ``p [3]`` the target.
+    """
+    pb = np.broadcast_to(p, np.shape(img))
+    single = np.exp(1j * ref_phase_np(ctx, img, pb)) + np.exp(1j * ref_phase_np(ctx, pb, img))
+    double = np.exp(1j * ref_phase_np(ctx, img, img))
+    return single, double
+
+
+def ghost_signal_np(ctx, p, a_ref, q, n, offset, gamma_ref) -> np.ndarray:
+    """The ghost ``[T, R, N]`` (NumPy reference of :meth:`MultipathGhost.apply`)."""
+    single, double = ghost_templates(ctx, p, image_point(p, q, n, offset))
+    return a_ref * (gamma_ref * single + gamma_ref ** 2 * double)
+
+
+def _fit_score(z, s1, s2):
+    """Energy removed from ``z`` by LS on ``(s1, s2)`` (batched ``[B, ...]``) and the ``s1`` gain."""
+    B = s1.shape[0]
+    Am = np.stack([s1.reshape(B, -1), s2.reshape(B, -1)], axis=-1)             # [B, M, 2]
+    G = np.einsum("bmi,bmj->bij", np.conj(Am), Am)
+    rhs = np.einsum("bmi,m->bi", np.conj(Am), z.ravel())
+    coef = np.linalg.solve(G + 1e-9 * np.eye(2), rhs[..., None])[..., 0]
+    gain = np.einsum("bi,bi->b", np.conj(coef), rhs).real
+    return gain, coef[:, 0]
+
+
+def target_amplitude(x, ctx, p):
+    """LS amplitude (referred, :func:`ref_phase_np`) of the static point ``p`` in ``x`` (Dr.Jit).
+
+    ``<s, x> / <s, s>`` over all frames, chirps and channels, as a pair of
+    width-1 ``mi.Float``: the ghost follows the model's target (and its gain).
+    """
+    T, R, N = ctx.radar.num_tx, ctx.radar.num_rx, ctx.radar.num_samples
+    s = np.exp(-1j * ref_phase_np(ctx, p, p)).reshape(1, T, R, 1, N) / float(np.prod(x[0].shape))
+    prod = ops.cmul(x, ops.tensor(s))
+    one = (1, 1, 1, 1, 1)
+    return tuple(ops.view(dr.sum(c, axis=None), one) for c in prod)
+
+
+class MultipathGhost(Effect):
+    """Multipath ghost of the model's strongest scatterer via a flat surface (3 parameters).
+
+    ================  ========================================================
+    ``plane``         ``(point [3], normal [3])`` [m] in the radar frame, e.g.
+                      ``((0, 0, -h), (0, 0, 1))`` for a floor ``h`` below; None:
+                      search floors, ceilings and side walls in init
+    ``distances``     ``(min, max)`` plane distances from the radar searched
+                      when ``plane`` is None [m]
+    ``max_offset``    bound of the plane offset refinement [m]
+    ``min_range``     smallest target range considered [m]
+    ================  ========================================================
+
+    The target and (default) the plane chosen at init are kept on the
+    instance (``target_``, ``plane_``), so use one instance per model.
+    """
+
+    name = "multipath_ghost"
+    kind = "mean"
+    stage = 0
+    description = "multipath ghost of the strongest scatterer via a flat surface"
+
+    def __init__(self, plane=None, distances=(0.2, 4.0), max_offset: float = 0.25,
+                 min_range: float = 0.3):
+        self.plane = None if plane is None else check_plane(plane)
+        try:
+            lo, hi = (float(v) for v in distances)
+        except (TypeError, ValueError):
+            raise ConfigError(f"MultipathGhost: distances must be (min, max) in metres, "
+                              f"got {distances!r}") from None
+        if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
+            raise ConfigError(f"MultipathGhost: distances must satisfy 0 < min < max, "
+                              f"got {distances!r}")
+        if not np.isfinite(max_offset) or max_offset <= 0:
+            raise ConfigError(f"MultipathGhost: max_offset must be > 0 m, got {max_offset}")
+        if not np.isfinite(min_range) or min_range < 0:
+            raise ConfigError(f"MultipathGhost: min_range must be >= 0 m, got {min_range}")
+        self.distances = (lo, hi)
+        self.max_offset = float(max_offset)
+        self.min_range = float(min_range)
+        self.plane_ = self.plane
+        self.target_ = None
+
+    # ---------------------------------------------------------- init
+    def _target(self, ctx, model):
+        radar = ctx.radar
+        r, az, el, a = strongest_point(static_view(model), ctx, self.min_range,
+                                       0.95 * radar.max_range, has_elevation_aperture(radar))
+        az_r, el_r = np.radians(az), np.radians(el)
+        p = r * np.array([np.cos(el_r) * np.cos(az_r), np.cos(el_r) * np.sin(az_r), np.sin(el_r)])
+        return p, a
+
+    def _candidates(self, ctx, p):
+        """``[(q, n, offsets)]`` to score: the given plane +- max_offset, or the families."""
+        step = ctx.radar.range_resolution / 6
+        if self.plane is not None:
+            q, n = self.plane
+            return [(q, n, np.arange(-self.max_offset, self.max_offset + 1e-12, step))]
+        out = []
+        lo, hi = self.distances
+        for _, n in FAMILIES:
+            n = np.asarray(n)
+            d = np.arange(lo, hi + 1e-12, step)
+            d = d[d > -np.dot(p, n) + 0.05]            # target on the radar's side, 5 cm clear
+            if d.size:
+                out.append((np.zeros(3), n, -d))      # plane through -d n: offsets of q = 0
+        return out
+
+    def _search(self, ctx, z, p, a):
+        """Best ``(q, n, offset, gamma_ref)`` over the candidates by LS energy reduction."""
+        res = ctx.radar.range_resolution
+        best = (-np.inf, None)
+        for q, n, offs in self._candidates(ctx, p):
+            img = image_point(p, q, n, offs)                                # [B, 3]
+            extra = np.linalg.norm(img, axis=1) - np.linalg.norm(p)
+            keep = extra > 1.5 * res                                        # resolvable ghost
+            if not keep.any():
+                continue
+            offs, img = offs[keep], img[keep]
+            for s in range(0, len(offs), 64):
+                s1, s2 = ghost_templates(ctx, p, img[s:s + 64])
+                gain, g1 = _fit_score(z, a * s1, a * s2)
+                j = int(np.argmax(gain))
+                if gain[j] > best[0]:
+                    best = (gain[j], (q, n, offs[s + j], g1[j]))
+        if best[1] is None:
+            raise ConfigError("MultipathGhost: no candidate plane gives a resolvable ghost "
+                              f"(distances={self.distances})")
+        return best[1]
+
+    def param_specs(self, ctx, model, residual):
+        p, a = self._target(ctx, model)
+        z = static_view(residual)
+        q, n, off, g = self._search(ctx, z, p, a)
+        if self.plane is None:               # re-centre the found plane: offset starts at 0
+            q, off = q + off * n, 0.0
+        self.plane_ = (q, n)
+        self.target_ = (p, a)
+        if abs(g) > 1.5:
+            g = 1.5 * g / abs(g)
+        return {"offset": ParamSpec([off], lower=-self.max_offset, upper=self.max_offset,
+                                    unit="m"),
+                "gamma": ParamSpec([g.real, g.imag], lower=-2.0, upper=2.0,
+                                   unit="complex (referred to f_c, |p'| - |p|)")}
+
+    # --------------------------------------------------------- forward
+    def apply(self, x, p, ctx):
+        if self.target_ is None:
+            raise ConfigError("MultipathGhost: apply() before param_specs() (no target)")
+        tgt, _ = self.target_
+        q, n = self.plane_
+        one = (1, 1, 1, 1, 1)
+        geo = DrGeometry(ctx)
+        a = target_amplitude(x, ctx, tgt)
+        img0 = image_point(tgt, q, n, 0.0)
+        off = ops.view(p["offset"], one)
+        P = [float(tgt[i]) for i in range(3)]
+        I = [float(img0[i]) + (2.0 * float(n[i])) * off for i in range(3)]
+        nP = float(np.linalg.norm(tgt))
+        nI = dr.sqrt(dr.square(I[0]) + dr.square(I[1]) + dr.square(I[2]))
+        s1 = ops.cadd(ops.cis(dr_ref_phase(geo, I, P, nI, nP)),
+                      ops.cis(dr_ref_phase(geo, P, I, nP, nI)))
+        s2 = ops.cis(dr_ref_phase(geo, I, I, nI, nI))
+        g = (ops.column(ops.view(p["gamma"], (1, 2)), 0, one),
+             ops.column(ops.view(p["gamma"], (1, 2)), 1, one))
+        ghost = ops.cadd(ops.cmul(s1, g), ops.cmul(s2, ops.cmul(g, g)))
+        return ops.cadd(x, ops.cmul(ghost, a))
+
+    def summary(self, p, ctx):
+        off = float(p["offset"][0])
+        g_ref = complex(p["gamma"][0], p["gamma"][1])
+        out = {"offset_m": round(off, 5), "gamma_abs": round(abs(g_ref), 5)}
+        if self.target_ is not None:
+            tgt, a = self.target_
+            q, n = self.plane_
+            img = image_point(tgt, q, n, off)
+            extra = np.linalg.norm(img) - np.linalg.norm(tgt)
+            g = g_ref * np.exp(-1j * carrier_phase(ctx, extra))
+            out.update({"gamma_phase_deg": round(float(np.degrees(np.angle(g))), 2),
+                        "plane_point_m": (q + off * n).round(4).tolist(),
+                        "plane_normal": n.round(4).tolist(),
+                        "target_m": tgt.round(4).tolist(),
+                        "ghost_ranges_m": [round(float(np.linalg.norm(tgt) + extra / 2), 4),
+                                           round(float(np.linalg.norm(img)), 4)]})
+        return out
