@@ -36,7 +36,7 @@ from ...processing.range_fft import range_fft
 from ...radar.config import SPEED_OF_LIGHT
 from .. import ops
 from ..base import Effect, ParamSpec
-from .scatterer import static_view
+from .scatterer import single_blas, static_view
 
 dr, mi = ops.dr, ops.mi
 NS = 1e-9
@@ -200,6 +200,7 @@ class Coupling(Effect):
     def _delay_bounds(self):
         return 2 * self.min_range / SPEED_OF_LIGHT, 2 * self.max_range / SPEED_OF_LIGHT
 
+    @single_blas
     def param_specs(self, ctx, model, residual):
         radar = ctx.radar
         T, R, N = radar.num_tx, radar.num_rx, radar.num_samples

@@ -55,7 +55,7 @@ from ...errors import ConfigError
 from ...radar.config import SPEED_OF_LIGHT
 from .. import ops
 from ..base import Effect, ParamSpec
-from .scatterer import static_view, unit_vectors
+from .scatterer import one_blas_thread, single_blas, static_view, unit_vectors
 
 dr, mi = ops.dr, ops.mi
 
@@ -126,7 +126,7 @@ def bin_cosines(z, ctx, az_limit: float = 80.0) -> np.ndarray:
 
 
 def _beam_peak(d, ctx, az0, width):
-    """Azimuth [deg] maximising the matched-steering power of ``d [T R]`` within ``az0 +- width``."""
+    """Azimuth [deg] maximising the matched-steering power of ``d [T R]`` in ``az0 +- width``."""
     out = minimize_scalar(lambda a: -float(np.abs(np.vdot(steering(ctx, [a])[:, 0], d))),
                           bounds=(az0 - width, az0 + width), method="bounded",
                           options={"xatol": 1e-4})
@@ -136,7 +136,7 @@ def _beam_peak(d, ctx, az0, width):
 def dominant_directions(z, ctx, max_dirs: int, min_share: float = 1e-3,
                         max_corr: float = 0.95, min_explained: float = 0.9,
                         az_limit: float = 80.0):
-    """Channel vectors of the strongest range peaks of ``z [T, R, N]``: ``(az [J] deg, D [T R, J])``.
+    """Channel vectors of the strongest range peaks of ``z [T, R, N]``: ``(az [J], D [T R, J])``.
 
     Local maxima of the range profile (unitary-DFT bins) in decreasing power,
     above ``min_share`` of the total, each giving its unit channel vector
@@ -270,6 +270,7 @@ class EgoMotion(Effect):
         self.angle_aware = bool(angle_aware)
         self.max_directions = int(max_directions)
 
+    @single_blas
     def param_specs(self, ctx, model, residual):
         v = estimate_velocity(model, model + residual, ctx, self.max_speed)
         return {"velocity": ParamSpec([v], lower=-self.max_speed, upper=self.max_speed,
@@ -282,19 +283,21 @@ class EgoMotion(Effect):
         fast = np.broadcast_to(fast, (F, T, 1, C, N))
         if not self.angle_aware:
             return ops.cmul(x, ops.cis(ops.tensor(bins + fast) * v))
-        z = static_view(ops.to_numpy(x))                                     # [T, R, N]
-        az, D = dominant_directions(z, ctx, self.max_directions)
+        with one_blas_thread():
+            z = static_view(ops.to_numpy(x))                                 # [T, R, N]
+            az, D = dominant_directions(z, ctx, self.max_directions)
+            Dp = np.linalg.pinv(D) if len(az) else None                      # [J, T R]
+            if len(az):
+                z = z - (D @ (Dp @ z.reshape(T * R, N))).reshape(T, R, N)
+            cos_k = bin_cosines(z, ctx).reshape(1, 1, 1, 1, N)
         moved, rest = None, x
         if len(az):
-            Dp = np.linalg.pinv(D)                                           # [J, T R]
-            z = z - (D @ (Dp @ z.reshape(T * R, N))).reshape(T, R, N)
             for j in range(len(az)):
                 xj = _component(x, D[:, j], Dp[j], (F, T, R, C, N))
                 rest = (rest[0] - xj[0], rest[1] - xj[1])
                 cos_j = float(np.cos(np.radians(az[j])))
                 xj = ops.cmul(xj, ops.cis(ops.tensor((bins + fast) * cos_j) * v))
                 moved = xj if moved is None else ops.cadd(moved, xj)
-        cos_k = bin_cosines(z, ctx).reshape(1, 1, 1, 1, N)
         xr = ops.idft(ops.cmul(ops.dft(rest), ops.cis(ops.tensor(bins * cos_k) * v)))
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
         return xr if moved is None else ops.cadd(moved, xr)

@@ -38,7 +38,7 @@ from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
 from .scatterer import (C0, DrGeometry, carrier_phase, dr_ref_phase, has_elevation_aperture,
-                        ref_phase_np, static_view, strongest_point)
+                        ref_phase_np, single_blas, static_view, strongest_point)
 
 dr, mi = ops.dr, ops.mi
 
@@ -62,7 +62,7 @@ def check_plane(plane):
 
 
 def image_point(p, q, n, offset=0.0) -> np.ndarray:
-    """Mirror image of ``p [..., 3]`` across the plane through ``q + offset n`` with normal ``n``."""
+    """Mirror image of ``p [..., 3]`` across the plane through ``q + offset n``, normal ``n``."""
     d = np.sum((np.asarray(p) - q) * n, axis=-1) - np.asarray(offset)
     return np.asarray(p) - 2.0 * d[..., None] * n
 
@@ -95,7 +95,8 @@ def ghost_signal_np(ctx, p, a_ref, q, n, offset, gamma_ref) -> np.ndarray:
 
 
 def _fit_score(z, s1, s2):
-    """Energy removed from ``z`` by LS on ``(s1, s2)`` (batched ``[B, ...]``) and the ``s1`` gain."""
+    """Energy removed from ``z`` by LS on ``(s1, s2)`` (batched ``[B, ...]``), and the ``s1``
+    gain."""
     B = s1.shape[0]
     Am = np.stack([s1.reshape(B, -1), s2.reshape(B, -1)], axis=-1)             # [B, M, 2]
     G = np.einsum("bmi,bmj->bij", np.conj(Am), Am)
@@ -170,9 +171,8 @@ class MultipathGhost(Effect):
         p = r * np.array([np.cos(el_r) * np.cos(az_r), np.cos(el_r) * np.sin(az_r), np.sin(el_r)])
         return p, a
 
-    def _candidates(self, ctx, p):
+    def _candidates(self, ctx, p, step):
         """``[(q, n, offsets)]`` to score: the given plane +- max_offset, or the families."""
-        step = ctx.radar.range_resolution / 6
         if self.plane is not None:
             q, n = self.plane
             return [(q, n, np.arange(-self.max_offset, self.max_offset + 1e-12, step))]
@@ -186,28 +186,44 @@ class MultipathGhost(Effect):
                 out.append((np.zeros(3), n, -d))      # plane through -d n: offsets of q = 0
         return out
 
+    @staticmethod
+    def _scan(ctx, z, p, a, q, n, offs):
+        """Best ``(gain, offset, gamma_ref)`` of one plane over ``offs`` (None: none resolvable)."""
+        img = image_point(p, q, n, offs)                                    # [B, 3]
+        extra = np.linalg.norm(img, axis=1) - np.linalg.norm(p)
+        keep = extra > 1.5 * ctx.radar.range_resolution                    # resolvable ghost
+        offs, img = offs[keep], img[keep]
+        best = None
+        for s in range(0, len(offs), 32):
+            s1, s2 = ghost_templates(ctx, p, img[s:s + 32])
+            gain, g1 = _fit_score(z, a * s1, a * s2)
+            j = int(np.argmax(gain))
+            if best is None or gain[j] > best[0]:
+                best = (gain[j], offs[s + j], g1[j])
+        return best
+
     def _search(self, ctx, z, p, a):
-        """Best ``(q, n, offset, gamma_ref)`` over the candidates by LS energy reduction."""
-        res = ctx.radar.range_resolution
-        best = (-np.inf, None)
-        for q, n, offs in self._candidates(ctx, p):
-            img = image_point(p, q, n, offs)                                # [B, 3]
-            extra = np.linalg.norm(img, axis=1) - np.linalg.norm(p)
-            keep = extra > 1.5 * res                                        # resolvable ghost
-            if not keep.any():
-                continue
-            offs, img = offs[keep], img[keep]
-            for s in range(0, len(offs), 64):
-                s1, s2 = ghost_templates(ctx, p, img[s:s + 64])
-                gain, g1 = _fit_score(z, a * s1, a * s2)
-                j = int(np.argmax(gain))
-                if gain[j] > best[0]:
-                    best = (gain[j], (q, n, offs[s + j], g1[j]))
-        if best[1] is None:
+        """Best ``(q, n, offset, gamma_ref)`` by LS energy reduction: a grid of a third of
+        a range bin over the candidates, then a tenth of that about the best."""
+        coarse = ctx.radar.range_resolution / 3
+        best = None
+        for q, n, offs in self._candidates(ctx, p, coarse):
+            found = self._scan(ctx, z, p, a, q, n, offs)
+            if found is not None and (best is None or found[0] > best[0][0]):
+                best = (found, q, n)
+        if best is None:
             raise ConfigError("MultipathGhost: no candidate plane gives a resolvable ghost "
                               f"(distances={self.distances})")
-        return best[1]
+        (_, off, g), q, n = best
+        fine = off + np.linspace(-coarse, coarse, 21)
+        if self.plane is not None:
+            fine = np.clip(fine, -self.max_offset, self.max_offset)
+        found = self._scan(ctx, z, p, a, q, n, fine)
+        if found is not None:
+            _, off, g = found
+        return q, n, off, g
 
+    @single_blas
     def param_specs(self, ctx, model, residual):
         p, a = self._target(ctx, model)
         z = static_view(residual)

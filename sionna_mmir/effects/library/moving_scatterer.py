@@ -40,7 +40,8 @@ import numpy as np
 from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
-from .scatterer import C0, DrGeometry, beat_ranges, check_range_limits, dr_ref_phase, ref_phase_np
+from .scatterer import (C0, DrGeometry, beat_ranges, check_range_limits, dr_ref_phase,
+                        ref_phase_np, single_blas)
 
 dr, mi = ops.dr, ops.mi
 
@@ -220,6 +221,9 @@ class MovingScatterer(Effect):
     kind = "mean"
     stage = 0
     repeatable = True
+    #: frames needed for a track: on one frame this is a missing scatterer with a
+    #: velocity, and the held-out score cannot tell it from ``missing_scatterer``
+    min_frames = 2
     description = "moving point target (per-frame range, azimuth, velocity, amplitude)"
 
     def __init__(self, min_range: float = 0.3, max_range: float | None = None,
@@ -237,6 +241,7 @@ class MovingScatterer(Effect):
         self.range_margin = float(range_margin)
         self.az_limit = float(az_limit)
 
+    @single_blas
     def param_specs(self, ctx, model, residual):
         radar = ctx.radar
         rmax = 0.95 * radar.max_range if self.max_range is None else self.max_range
