@@ -10,7 +10,9 @@ the same ``max_depth``.
 sionna_mmir
     ``RadarPathSolver()(scene, radar, num_rays=N, max_depth=D, seed=0)``,
     isotropic elements (``tx_pattern=rx_pattern="iso"``, as on the Sionna
-    side).  One path per hit ray and depth, expanded to ``[T, R, P]``.
+    side).  One path per hit ray and depth, held factorised over the
+    elements (``a = c g_t g_r``, ``tau = tau_t + tau_r``: ``RadarPaths.factors``)
+    and synthesised without the ``[T, R, P]`` expansion.
     Gradients: ``vertex_materials`` [Nv, 6] and ``vertex_normals`` [Nv, 3] of
     the mesh object.
 Sionna RT 2.2
@@ -34,10 +36,13 @@ Measured stages (each: a warm-up run, then the best of ``repeat`` runs; the
 first, cold run -- Dr.Jit kernel compilation, unless the on-disk kernel cache
 has them -- is recorded as ``cold_s``):
 
-``fwd_paths``   solver + evaluate the per-pair amplitudes and delays
-                (Sionna: ``paths.a`` with the synthetic array applied)
-``fb_paths``    the same, loss ``sum |a|^2`` over pairs and paths, ``dr.backward``,
-                evaluate the gradients
+``fwd_paths``   solver + evaluate the paths (sionna_mmir: the factors
+                ``c [P]``, ``g_t, tau_t [T P]``, ``g_r, tau_r [R P]``, from
+                which every per-pair amplitude and delay follows by one product;
+                Sionna: ``paths.a`` with the synthetic array applied)
+``fb_paths``    the same, loss ``sum |a|^2`` over pairs and paths (sionna_mmir:
+                ``sum_p |c|^2 sum_t g_t^2 sum_r g_r^2``, the same number),
+                ``dr.backward``, evaluate the gradients
 ``fwd_signal``  sionna_mmir: solver + ``paths.adc(radar)`` (raw ADC, 256
                 samples); Sionna: solver + ``paths.cfr`` at the 256 ADC
                 sample frequencies ``f0 + S t_k`` (its counterpart of the ADC)
@@ -47,7 +52,11 @@ has them -- is recorded as ``cold_s``):
 Every (mesh, rays, solver) runs in its own subprocess; before each stage the
 Dr.Jit allocation cache is flushed and the peak-RSS counter is reset
 (``/proc/self/clear_refs``), so each stage reports its own peak (``VmHWM``,
-the process's baseline -- interpreter, scene -- included).  The parent kills
+the process's baseline -- interpreter, scene -- included).  A background
+thread also samples the worker's RSS (``/proc/self/statm``) and the system's
+``MemAvailable`` every 10 ms during the stage (``peak_sampled_gib``,
+``memavail_drop_gib``), and Dr.Jit's own allocation watermark is recorded
+(``drjit_watermark_gib``, ``dr.detail.malloc_watermark``).  The parent kills
 a worker whose RSS passes ``--mem-limit-gib`` and records the stage as
 ``killed``.
 
@@ -142,6 +151,70 @@ def _reset_peak():
         return False
 
 
+def _mem_available():
+    with open("/proc/meminfo") as f:
+        for line in f:
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    return 0
+
+
+class MemSampler:
+    """Background thread sampling this process's RSS and the system's
+    ``MemAvailable`` every ``interval`` s: ``peak_rss`` and ``avail_drop`` [bytes]
+    (the latter also counts other processes' growth: an upper bound)."""
+
+    def __init__(self, interval=0.01):
+        self.interval = interval
+        self.page = os.sysconf("SC_PAGE_SIZE")
+        self.peak_rss, self.avail0, self.min_avail = 0, _mem_available(), None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _sample(self):
+        with open("/proc/self/statm") as f:
+            rss = int(f.read().split()[1]) * self.page
+        self.peak_rss = max(self.peak_rss, rss)
+        avail = _mem_available()
+        self.min_avail = avail if self.min_avail is None else min(self.min_avail, avail)
+
+    def _run(self):
+        while not self._stop.is_set():
+            self._sample()
+            time.sleep(self.interval)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self._sample()
+
+    @property
+    def avail_drop(self):
+        return max(0, self.avail0 - (self.min_avail or self.avail0))
+
+
+def _drjit_watermark():
+    import drjit as dr
+
+    try:
+        return dr.detail.malloc_watermark(dr.JitBackend.LLVM)
+    except (AttributeError, TypeError):
+        return None
+
+
+def _drjit_clear_stats():
+    import drjit as dr
+
+    try:
+        dr.detail.malloc_clear_statistics()
+    except AttributeError:
+        pass
+
+
 def _emit(obj):
     sys.stdout.write(MARK + json.dumps(obj) + "\n")
     sys.stdout.flush()
@@ -165,12 +238,18 @@ def _sync():
 
 
 def _instrument_adc(timers_ref):
-    """Time the NumPy ADC synthesis and its adjoint inside the custom op."""
+    """Time the NumPy ADC synthesis and its adjoint inside the custom ops."""
     from sionna_mmir.fmcw import synthesize as syn
+    from sionna_mmir.fmcw import synthesize_factorised as fac
 
-    if getattr(syn._Prepared, "_bench_wrapped", False):
+    _wrap_adc(syn._Prepared, timers_ref)
+    _wrap_adc(fac.FactorisedSynthesis, timers_ref)
+
+
+def _wrap_adc(cls, timers_ref):
+    if getattr(cls, "_bench_wrapped", False):
         return
-    fwd, vjp = syn._Prepared.forward, syn._Prepared.vjp
+    fwd, vjp = cls.forward, cls.vjp
 
     def forward(self):
         t = time.perf_counter()
@@ -184,8 +263,8 @@ def _instrument_adc(timers_ref):
         timers_ref[0].add("adc_numpy_adjoint", time.perf_counter() - t)
         return out
 
-    syn._Prepared.forward, syn._Prepared.vjp = forward, vjp_
-    syn._Prepared._bench_wrapped = True
+    cls.forward, cls.vjp = forward, vjp_
+    cls._bench_wrapped = True
 
 
 class MMIRCase:
@@ -221,7 +300,7 @@ class MMIRCase:
         import drjit as dr
 
         t = _sync()
-        dr.eval(paths.a_re, paths.a_im, paths.tau)
+        dr.eval(*paths.arrays())          # the factors (no [T, R, P] expansion)
         self.timers[0].add("eval_paths", _sync() - t)
 
     def _adc(self, paths):
@@ -377,23 +456,28 @@ def worker(job):
             dr.flush_malloc_cache()
             base = _status("VmRSS")
             reset = _reset_peak()
+            _drjit_clear_stats()
             _emit(dict(event="start", stage=stage))
             times, breakdown, cold = [], [], None
             runs = int(job["repeat"]) + (1 if job.get("warmup", True) else 0)
-            for i in range(max(1, runs)):
-                case.timers[0] = Timers()
-                t = _sync()
-                case.run(stage)
-                dt = _sync() - t
-                if i == 0:
-                    cold = dt
-                if i > 0 or not job.get("warmup", True):
-                    times.append(dt)
-                    breakdown.append(dict(case.timers[0].t))
+            with MemSampler() as mem:
+                for i in range(max(1, runs)):
+                    case.timers[0] = Timers()
+                    t = _sync()
+                    case.run(stage)
+                    dt = _sync() - t
+                    if i == 0:
+                        cold = dt
+                    if i > 0 or not job.get("warmup", True):
+                        times.append(dt)
+                        breakdown.append(dict(case.timers[0].t))
             best = min(range(len(times)), key=lambda k: times[k])
+            wm = _drjit_watermark()
             _emit(dict(event="result", stage=stage, status="ok", best_s=times[best], times_s=times,
                        cold_s=cold, breakdown=breakdown[best], info=dict(case.info),
                        peak_gib=_status("VmHWM") / GIB, base_gib=base / GIB,
+                       peak_sampled_gib=mem.peak_rss / GIB, memavail_drop_gib=mem.avail_drop / GIB,
+                       drjit_watermark_gib=None if wm is None else wm / GIB,
                        peak_is_per_stage=reset))
 
 
@@ -562,6 +646,9 @@ def summarise(jobs):
             memory.append(dict(triangles=jb["triangles"], rays=jb["rays"], solver=jb["solver"], stage=st,
                                status=s.get("status"), time_s=s.get("best_s"),
                                peak_gib=s.get("peak_gib"), base_gib=s.get("base_gib"),
+                               peak_sampled_gib=s.get("peak_sampled_gib"),
+                               memavail_drop_gib=s.get("memavail_drop_gib"),
+                               drjit_watermark_gib=s.get("drjit_watermark_gib"),
                                paths=s.get("info", {}).get("paths"),
                                pair_paths=s.get("info", {}).get("pair_paths"),
                                breakdown=s.get("breakdown"), note=s.get("note")))
@@ -614,11 +701,15 @@ def to_markdown(res):
                        f"{_f(b['best_s'])} | {_f(b['cold_s'])} | " + " | ".join(_f(b.get(k)) for k in keys) + " |")
     if res["memory"]:
         out += ["", f"Memory check (kill limit {res['meta']['mem_limit_gib']:.1f} GiB RSS; single cold run):", "",
-                "| triangles | rays | solver | stage | status | time | peak RSS [GiB] | paths | pair-paths | note |",
-                "|---:|---:|:---|:---|:---|---:|---:|---:|---:|:---|"]
+                "| triangles | rays | solver | stage | status | time | peak RSS (VmHWM) [GiB] "
+                "| peak RSS sampled | MemAvailable drop | Dr.Jit watermark | paths | pair-paths | note |",
+                "|---:|---:|:---|:---|:---|---:|---:|---:|---:|---:|---:|---:|:---|"]
         for m in res["memory"]:
             out.append(f"| {m['triangles']:,} | {m['rays']:.0e} | {name[m['solver']]} | {m['stage']} | "
                        f"{m['status']} | {_f(m['time_s'], '{:.1f}')} | {_f(m['peak_gib'], '{:.2f}')} | "
+                       f"{_f(m.get('peak_sampled_gib'), '{:.2f}')} | "
+                       f"{_f(m.get('memavail_drop_gib'), '{:.2f}')} | "
+                       f"{_f(m.get('drjit_watermark_gib'), '{:.2f}')} | "
                        f"{_f(m['paths'], '{:,}')} | {_f(m['pair_paths'], '{:.2e}')} | {m['note'] or ''} |")
     out += ["", f"Total benchmark wall time: {meta['total_s']:.0f} s."]
     return "\n".join(out)

@@ -5,10 +5,19 @@ counterpart of Sionna RT's ``Paths``.  Amplitudes are *voltage ratios*
 (``|a|^2`` = received / transmitted power for unit transmit power); the
 carrier phase is not in ``a`` but in the delay ``tau`` (paper eq. 4), which
 :func:`~sionna_mmir.fmcw.synthesize_adc` applies per ADC sample.
+
+The solver's paths factor over the Tx and Rx elements (MIMO ray reuse)::
+
+    a[t, r, p] = c[p] g_t[t, p] g_r[r, p]      tau[t, r, p] = tau_t[t, p] + tau_r[r, p]
+
+and are kept in that form (:class:`PathFactors`, ``(T + R + 2) P`` numbers
+instead of ``2 T R P``): :meth:`RadarPaths.adc` and :meth:`RadarPaths.power`
+work on the factors, while the expanded ``a_re`` / ``a_im`` / ``tau`` /
+``tau_rate`` are formed on first access, for consumers that need them.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -19,8 +28,94 @@ init_backend()
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
+_FLAT = ("a_re", "a_im", "tau", "tau_rate")
+
 
 @dataclass
+class PathFactors:
+    """Factorised paths (Dr.Jit ``mi.Float`` arrays, inside the AD graph).
+
+    ==========  ============================================================
+    c_re, c_im  [P] per-path amplitude, beat convention (``a = c g_t g_r``)
+    g_t         [T*P] Tx-leg gain (``t`` slowest, ``p`` fastest)
+    tau_t       [T*P] Tx-leg delay [s]
+    g_r         [R*P] Rx-leg gain
+    tau_r       [R*P] Rx-leg delay [s]
+    rate        [P] delay rate ``d tau / dt`` [s/s], or ``None`` (static)
+    shape       ``(T, R, P)``
+    ==========  ============================================================
+    """
+
+    c_re: object
+    c_im: object
+    g_t: object
+    tau_t: object
+    g_r: object
+    tau_r: object
+    rate: object
+    shape: tuple
+
+    def arrays(self) -> list:
+        """The stored Dr.Jit arrays (for ``dr.eval``)."""
+        return [x for x in (self.c_re, self.c_im, self.g_t, self.tau_t, self.g_r, self.tau_r,
+                            self.rate) if x is not None]
+
+    def _index(self):
+        """Flat ``[T*R*P]`` gather indices ``(t * P + p, r * P + p, p)``."""
+        T, R, P = self.shape
+        i = dr.arange(mi.UInt32, T * R * P)
+        t, r, p = i // (R * P), (i // P) % R, i % P
+        return t * P + p, r * P + p, p
+
+    def expand(self, name: str):
+        """One expanded field (``a_re``, ``a_im``, ``tau``, ``tau_rate``), ``mi.Float``
+        [T*R*P] (AD), or ``None`` for a static ``tau_rate``."""
+        if name == "tau_rate" and self.rate is None:
+            return None
+        it, ir, p = self._index()
+        if name == "tau":
+            return dr.gather(mi.Float, self.tau_t, it) + dr.gather(mi.Float, self.tau_r, ir)
+        if name == "tau_rate":
+            return dr.gather(mi.Float, self.rate, p)
+        c = self.c_re if name == "a_re" else self.c_im
+        return dr.gather(mi.Float, c, p) * dr.gather(mi.Float, self.g_t, it) \
+            * dr.gather(mi.Float, self.g_r, ir)
+
+    def numpy(self):
+        """Detached factors: ``(c complex128 [P], g_t, tau_t [T, P], g_r, tau_r [R, P],
+        rate [P] or None)``, float64."""
+        T, R, P = self.shape
+
+        def n(x, shape=None):
+            arr = np.asarray(dr.detach(x), dtype=np.float64)
+            return arr if shape is None else arr.reshape(shape)
+        rate = None if self.rate is None else n(self.rate)
+        return (n(self.c_re) + 1j * n(self.c_im), n(self.g_t, (T, P)), n(self.tau_t, (T, P)),
+                n(self.g_r, (R, P)), n(self.tau_r, (R, P)), rate)
+
+    def power(self):
+        """``mi.Float`` ``sum_p |c_p|^2 (sum_t g_t^2) (sum_r g_r^2)`` (AD)."""
+        T, R, P = self.shape
+        return dr.sum((dr.square(self.c_re) + dr.square(self.c_im))
+                      * _sum_rows(dr.square(self.g_t), T, P) * _sum_rows(dr.square(self.g_r), R, P))
+
+    def adc(self, radar):
+        """Raw ADC (``DrAdc``, AD) by the factorised synthesiser."""
+        from ..fmcw.drjit_factorised import synthesize_adc_factorised_drjit
+
+        return synthesize_adc_factorised_drjit(radar, self.c_re, self.c_im, self.g_t, self.tau_t,
+                                               self.g_r, self.tau_r, self.rate)
+
+
+def _sum_rows(x, n: int, P: int):
+    """``sum_i x[i * P + p]`` over ``i < n``: ``mi.Float`` [P] (AD)."""
+    p = dr.arange(mi.UInt32, P)
+    total = dr.gather(mi.Float, x, p)
+    for i in range(1, n):
+        total = total + dr.gather(mi.Float, x, p + i * P)
+    return total
+
+
 class RadarPaths:
     """Paths of one radar frame (Dr.Jit arrays, inside the AD graph).
 
@@ -32,42 +127,108 @@ class RadarPaths:
     shape           ``(T, R, P)``
     depth           ``np.ndarray`` [P] number of interactions of each path
     num_candidates  rays launched (the Monte Carlo ``N`` of eq. 3)
+    factors         :class:`PathFactors` or ``None``
     ==============  =========================================================
+
+    Built either from the expanded arrays (``RadarPaths(a_re, a_im, tau,
+    tau_rate, shape, depth, num_candidates)``) or from factors
+    (:meth:`from_factors`); with factors the expanded fields are gathered on
+    first access and cached.  Assigning an expanded field turns the object
+    into an expanded one (the factors are dropped).
     """
 
-    a_re: object
-    a_im: object
-    tau: object
-    tau_rate: object
-    shape: tuple
-    depth: np.ndarray
-    num_candidates: int
-    info: dict = field(default_factory=dict)
-    #: recorded discrete decisions, pass as ``samples=`` to replay them
-    samples: list | None = None
+    def __init__(self, a_re=None, a_im=None, tau=None, tau_rate=None, shape=(0, 0, 0),
+                 depth=None, num_candidates: int = 0, info: dict | None = None,
+                 samples: list | None = None, factors: PathFactors | None = None):
+        if factors is None and (a_re is None or a_im is None or tau is None):
+            raise ValueError("RadarPaths needs a_re, a_im and tau, or factors")
+        self._flat = dict(a_re=a_re, a_im=a_im, tau=tau, tau_rate=tau_rate)
+        self.factors = factors
+        self.shape = tuple(factors.shape if factors is not None else shape)
+        self.depth = np.zeros(self.shape[2], np.int32) if depth is None else depth
+        self.num_candidates = int(num_candidates)
+        self.info = {} if info is None else info
+        #: recorded discrete decisions, pass as ``samples=`` to replay them
+        self.samples = samples
+
+    @classmethod
+    def from_factors(cls, factors: PathFactors, depth=None, num_candidates: int = 0,
+                     info: dict | None = None, samples=None) -> "RadarPaths":
+        """Paths held as :class:`PathFactors` (no ``[T, R, P]`` expansion)."""
+        return cls(factors=factors, depth=depth, num_candidates=num_candidates, info=info,
+                   samples=samples)
+
+    # ------------------------------------------------------- expanded fields
+    def _get(self, name):
+        if self._flat[name] is None and self.factors is not None:
+            self._flat[name] = self.factors.expand(name)
+        return self._flat[name]
+
+    def _set(self, name, value):
+        if self.factors is not None:
+            for other in _FLAT:
+                self._get(other)
+            self.factors = None
+        self._flat[name] = value
+
+    a_re = property(lambda self: self._get("a_re"), lambda self, v: self._set("a_re", v))
+    a_im = property(lambda self: self._get("a_im"), lambda self, v: self._set("a_im", v))
+    tau = property(lambda self: self._get("tau"), lambda self, v: self._set("tau", v))
+    tau_rate = property(lambda self: self._get("tau_rate"), lambda self, v: self._set("tau_rate", v))
+
+    @property
+    def is_factorised(self) -> bool:
+        """True when the paths are held as :class:`PathFactors`."""
+        return self.factors is not None
 
     @property
     def num_paths(self) -> int:
         return self.shape[2]
 
+    def __repr__(self):
+        kind = "factorised" if self.is_factorised else "expanded"
+        return f"RadarPaths({kind}, shape={self.shape}, num_candidates={self.num_candidates})"
+
+    # ------------------------------------------------------------- accessors
+    def arrays(self) -> list:
+        """The stored Dr.Jit arrays (factors, or the expanded fields): ``dr.eval(*paths.arrays())``."""
+        if self.is_factorised:
+            return self.factors.arrays()
+        return [x for x in self._flat.values() if x is not None]
+
     def tensors(self):
-        """``(a_re, a_im, tau, tau_rate)`` as ``mi.TensorXf`` ``[T, R, P]``."""
+        """``(a_re, a_im, tau, tau_rate)`` as ``mi.TensorXf`` ``[T, R, P]`` (expands)."""
         def t(x):
             return None if x is None else mi.TensorXf(x, self.shape)
         return t(self.a_re), t(self.a_im), t(self.tau), t(self.tau_rate)
 
     def numpy(self):
-        """``(a complex128 [T,R,P], tau float64 [T,R,P], tau_rate or None)``."""
+        """``(a complex128 [T,R,P], tau float64 [T,R,P], tau_rate or None)`` (detached).
+
+        From factors the expansion is done in NumPy (float64), not in Dr.Jit.
+        """
+        if self.is_factorised:
+            c, g_t, tau_t, g_r, tau_r, rate = self.factors.numpy()
+            a = c[None, None, :] * g_t[:, None, :] * g_r[None, :, :]
+            tau = tau_t[:, None, :] + tau_r[None, :, :]
+            rho = None if rate is None else np.broadcast_to(rate, self.shape).copy()
+            return a, tau, rho
+
         def n(x):
             return None if x is None else np.asarray(dr.detach(x), dtype=np.float64).reshape(self.shape)
         return n(self.a_re) + 1j * n(self.a_im), n(self.tau), n(self.tau_rate)
 
     def power(self):
         """``mi.Float`` total received power ``sum |a|^2`` over pairs and paths (AD)."""
+        if self.is_factorised:
+            return self.factors.power()
         return dr.sum(dr.square(self.a_re) + dr.square(self.a_im))
 
     def adc(self, radar):
-        """Raw ADC via :func:`~sionna_mmir.fmcw.synthesize_adc` (a ``DrAdc``, AD)."""
+        """Raw ADC (a ``DrAdc``, AD): the factorised synthesiser when factorised,
+        else :func:`~sionna_mmir.fmcw.synthesize_adc` on the expanded arrays."""
+        if self.is_factorised:
+            return self.factors.adc(radar)
         from ..fmcw.synthesize import synthesize_adc
 
         a_re, a_im, tau, rate = self.tensors()

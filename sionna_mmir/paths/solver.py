@@ -94,7 +94,7 @@ from ..utils.backend import init_backend
 from .geometry import SceneGeometry, Tape
 from .polarization import Field, mirror, polarization_fractions, reflect_field, transverse
 from .pose import Pose
-from .radar_paths import RadarPaths
+from .radar_paths import PathFactors, RadarPaths
 from .triangle_po import triangle_phase_average
 
 init_backend()
@@ -614,11 +614,11 @@ class RadarPathSolver(PathSolver):
                           info={"hits": 0})
 
     def _assemble(self, outs, radar, pose, geo, ptx, prx, tx_w, rx_w, x1, N, K, moving):
-        """Expand per-path terms to ``[T, R, P]`` with per-element legs."""
+        """Per-path terms and per-element legs as factorised :class:`RadarPaths`."""
         T, R = radar.num_tx, radar.num_rx
         # keep only lanes that contribute (connected to the Tx): dead rays, failed
-        # shadow rays and empty reciprocal twins are dropped before the per-pair
-        # expansion (the masks are detached and frozen, so replay is identical)
+        # shadow rays and empty reciprocal twins are dropped before the per-element
+        # legs are formed (the masks are detached and frozen, so replay is identical)
         kept = []
         for o in outs:
             idx = dr.compress(dr.detach(o[8]))
@@ -652,19 +652,10 @@ class RadarPathSolver(PathSolver):
         # per-Tx leg [T, P] and per-Rx leg [R, P]: sqrt(gain) / leg length, and lengths
         g_t, dt = self._leg(tx_w, X, chain_t, ptx, pose, T, P)
         g_r, L = self._leg(rx_w, X1, chain, prx, pose, R, P)
-        # full [T, R, P]
-        fi = dr.arange(mi.UInt32, T * R * P)
-        t = fi // (R * P)
-        r = (fi // P) % R
-        p = fi % P
-        gt = dr.gather(mi.Float, g_t, t * P + p)
-        gr = dr.gather(mi.Float, g_r, r * P + p)
-        g = gt * gr
-        # FMCW beat convention: a = conj(channel coefficient) (see fmcw.model)
-        a_re = dr.gather(mi.Float, C_re, p) * g
-        a_im = -dr.gather(mi.Float, C_im, p) * g
-        tau = (dr.gather(mi.Float, dt, t * P + p) + dr.gather(mi.Float, L, r * P + p)) / SPEED_OF_LIGHT
-        tau_rate = dr.gather(mi.Float, rate, p) if moving else None
+        # factorised [T, R, P]: a = conj(C) g_t g_r (FMCW beat convention, see
+        # fmcw.model), tau = (dt + L) / c; expanded only on demand (RadarPaths)
+        factors = PathFactors(c_re=C_re, c_im=-C_im, g_t=g_t, tau_t=dt / SPEED_OF_LIGHT,
+                              g_r=g_r, tau_r=L / SPEED_OF_LIGHT, rate=rate if moving else None,
+                              shape=(T, R, P))
         depth = np.concatenate([np.full(o[8], o[7], dtype=np.int32) for o in outs])
-        return RadarPaths(a_re=a_re, a_im=a_im, tau=tau, tau_rate=tau_rate, shape=(T, R, P),
-                          depth=depth, num_candidates=N, info={"hits": K})
+        return RadarPaths.from_factors(factors, depth=depth, num_candidates=N, info={"hits": K})
