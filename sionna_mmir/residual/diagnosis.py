@@ -157,6 +157,10 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6
     names = [c.name for c in candidates]
     if len(set(names)) != len(names):
         raise ConfigError(f"diagnose: candidate names repeat: {names}")
+    # effects that need more frames than the capture has (e.g. a per-frame mover
+    # on one frame is a static scatterer with a free velocity) are not candidates
+    candidates = [c for c in candidates
+                  if getattr(c, "min_frames", 1) <= model.ctx.num_frames]
     model.fit(trainable=[], maxiter=maxiter)
     r = model.residual()
     if not np.sum(np.abs(r) ** 2) > 1e-12 * np.sum(np.abs(model.y * model.scale) ** 2):
