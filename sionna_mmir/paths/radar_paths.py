@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputValueError
 from ..utils.backend import init_backend
 
 init_backend()
@@ -141,7 +142,7 @@ class RadarPaths:
                  depth=None, num_candidates: int = 0, info: dict | None = None,
                  samples: list | None = None, factors: PathFactors | None = None):
         if factors is None and (a_re is None or a_im is None or tau is None):
-            raise ValueError("RadarPaths needs a_re, a_im and tau, or factors")
+            raise InputValueError("RadarPaths needs 'a_re', 'a_im' and 'tau', or 'factors'")
         self._flat = dict(a_re=a_re, a_im=a_im, tau=tau, tau_rate=tau_rate)
         self.factors = factors
         self.shape = tuple(factors.shape if factors is not None else shape)
