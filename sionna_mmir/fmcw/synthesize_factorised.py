@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputValueError
+from ..utils.threads import one_blas_thread
 from ..radar.config import RadarConfig
 
 #: working-set budget of one chunk of paths [bytes]; small chunks keep the
@@ -155,23 +156,12 @@ def linear_phasors(c0: np.ndarray, c1: np.ndarray, K: int, amp=None) -> np.ndarr
     return out.reshape((Q * Rr,) + c0.shape)[:K]
 
 
-def _single_thread_blas():
-    """Limit BLAS to one thread (if threadpoolctl is installed)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # optional: default threading
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
-
-
 def _in_groups(fn, items, workers: int) -> list:
     """``fn(group)`` for ``workers`` round-robin groups of ``items``, on threads
     with single-threaded BLAS; returns the results per group."""
     items = list(items)
     groups = [items[i::workers] for i in range(max(1, min(workers, len(items))))]
-    with _single_thread_blas():
+    with one_blas_thread():
         if len(groups) == 1:
             return [fn(groups[0])]
         with ThreadPoolExecutor(max_workers=len(groups)) as pool:

@@ -12,7 +12,6 @@
 """
 from __future__ import annotations
 
-import contextlib
 import numbers
 
 import warnings
@@ -20,6 +19,7 @@ import warnings
 import numpy as np
 
 from ...errors import ConfigError
+from ...utils.threads import one_blas_thread
 from .. import ops
 
 dr, mi = ops.dr, ops.mi
@@ -179,7 +179,7 @@ def prediction_coefficients(rows: np.ndarray, order: int, reg: float = 1e-7) -> 
     lagged = [rows[:, order - j:N - j] for j in range(1, order + 1)]
     A = np.stack(lagged, axis=-1).reshape(-1, order)
     y = rows[:, order:].reshape(-1)
-    with _one_blas_thread():
+    with one_blas_thread():
         G = A.conj().T @ A
         G += reg * max(np.trace(G).real / order, 1e-30) * np.eye(order)
         return np.linalg.solve(G, A.conj().T @ y)
@@ -298,26 +298,12 @@ def _pair_numpy(re, im) -> np.ndarray:
             + 1j * np.asarray(im, np.float64).reshape(shape))
 
 
-_BLAS = []
 
-
-def _one_blas_thread():
-    """Context limiting BLAS to one thread: these products are small and
-    OpenBLAS threads contending for busy cores make them ~50x slower."""
-    if not _BLAS:
-        try:
-            from threadpoolctl import ThreadpoolController
-            _BLAS.append(ThreadpoolController())
-        except ImportError:  # optional dependency
-            _BLAS.append(None)
-    if _BLAS[0] is None:
-        return contextlib.nullcontext()
-    return _BLAS[0].limit(limits=1, user_api="blas")
 
 
 def _rows_times(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     """``x @ m`` over the last axis as one 2-D product (batched matmul is slow)."""
-    with _one_blas_thread():
+    with one_blas_thread():
         out = x.reshape(-1, x.shape[-1]) @ m
     return out.reshape(x.shape[:-1] + (m.shape[1],))
 

@@ -27,12 +27,12 @@ range-azimuth map that is left.
 """
 from __future__ import annotations
 
-import contextlib
 import functools
 
 import numpy as np
 from scipy.optimize import minimize
 
+from ...utils.threads import one_blas_thread
 from ...errors import ConfigError
 from ...radar.config import SPEED_OF_LIGHT
 from .. import ops
@@ -43,31 +43,6 @@ C0 = SPEED_OF_LIGHT
 
 
 # ------------------------------------------------------------- threads
-@functools.lru_cache(maxsize=1)
-def _blas_controller():
-    try:
-        from threadpoolctl import ThreadpoolController
-    except ImportError:  # optional dependency: keep the default threading
-        return None
-    return ThreadpoolController()
-
-
-@contextlib.contextmanager
-def one_blas_thread():
-    """BLAS on one thread inside the block.
-
-    The inits and the ego-motion analysis do many small matrix products; with
-    a multi-threaded BLAS on a loaded machine each costs milliseconds instead
-    of microseconds (measured 600x on a 12 x 641 product).
-    """
-    ctl = _blas_controller()
-    if ctl is None:
-        yield
-        return
-    with ctl.limit(limits=1, user_api="blas"):
-        yield
-
-
 def single_blas(fn):
     """Decorator: run ``fn`` under :func:`one_blas_thread`."""
     @functools.wraps(fn)
