@@ -193,10 +193,13 @@ class EffectModel:
         """Mean NLL per complex sample over ``cells`` (nats), current values."""
         mask, n = self.mask_tensor(cells)
         with dr.suspend_grad():
-            _, X, v = self._forward(self._tensors())
-            r2 = ops.abs2((self.Y[0] - X[0], self.Y[1] - X[1]))
-            per = r2 / v + dr.log(v)
-            return ops.item(dr.sum(per * mask, axis=None)) / n
+            return ops.item(self.loss(self._tensors(), mask, n))
+
+    def loss(self, tens, mask, n):
+        """Masked mean NLL ``sum mask (|Y - X|^2 / v + log v) / n`` as a Dr.Jit value (AD)."""
+        _, X, v = self._forward(tens)
+        r2 = ops.abs2((self.Y[0] - X[0], self.Y[1] - X[1]))
+        return dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / n
 
     # ----------------------------------------------------------------- fit
     @_one_thread
@@ -235,9 +238,7 @@ class EffectModel:
             for (i, k), val in unpack(vec).items():
                 comps[i].values[k] = val
             tens = self._tensors(grad_keys=key_set)
-            _, X, v = self._forward(tens)
-            r2 = ops.abs2((self.Y[0] - X[0], self.Y[1] - X[1]))
-            loss = dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / n
+            loss = self.loss(tens, mask, n)
             dr.backward(loss)
             grad = np.concatenate([np.asarray(dr.grad(tens[key]), np.float64).ravel()
                                    for key in keys])
