@@ -166,7 +166,7 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6
     if not np.sum(np.abs(r) ** 2) > 1e-12 * np.sum(np.abs(model.y * model.scale) ** 2):
         raise InputValueError("diagnose: empty residual: the model already reproduces the "
                               "capture exactly (is the model the capture itself?)")
-    first = _current_metrics(model)
+    first = current = _current_metrics(model)
     first_mean, first_var = model.mean_variance_numpy()
     trains = cv_folds(model.ctx.shape[:4], folds, seed)
     adoptions, ranking = [], []
@@ -179,18 +179,18 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6
         if best.score <= 0 or best.gain_per_sample < min_gain:
             break
         eff = next(c for c in pool if c.name == best.name)
-        before = _current_metrics(model)
+        before = current
         res_before = model.residual()
         comp = model.add(eff)
         model.fit(maxiter=2 * maxiter)
-        after = _current_metrics(model)
+        after = current = _current_metrics(model)
         adoptions.append(Adoption(name=eff.name, round=rnd, candidates=ranking, before=before,
                                   after=after, params=eff.summary(comp.values, model.ctx),
                                   residual_before=res_before, residual_after=model.residual()))
         if not getattr(eff, "repeatable", False):
             pool = [c for c in pool if c is not eff]
         ranking = []
-    final = _current_metrics(model)
+    final = current
     mean = model.mean_adc()
     unexplained = json_view(residual_domains(model.ctx, model.y * model.scale, mean))
     settings = {"folds": folds, "max_rounds": max_rounds, "penalty_nats_per_param": penalty,
