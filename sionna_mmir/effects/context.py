@@ -13,6 +13,8 @@ import numpy as np
 from ..errors import InputValueError
 from ..radar.config import SPEED_OF_LIGHT, RadarConfig
 
+IF_BAND_START = -0.1      # complex IF band [-0.1 f_s, 0.9 f_s): see band_frequencies
+
 
 @dataclasses.dataclass
 class EffectContext:
@@ -102,6 +104,31 @@ class EffectContext:
     def bin_ranges(self) -> np.ndarray:
         """Monostatic range of each DFT bin, ``[N]`` [m] (negative half negative)."""
         return self.beat_frequencies * SPEED_OF_LIGHT / (2.0 * self.radar.slope)
+
+    def band_frequencies(self, band_start: float = IF_BAND_START, n: int | None = None):
+        """Physical beat frequency of every range bin, ``[n]`` [Hz] (``np.fft`` order).
+
+        ``n`` is the DFT length (default ``N``, the samples per chirp).
+        Complex samples only fix a bin's frequency modulo ``f_s``; the bins are
+        mapped into the band ``[band_start f_s, (band_start + 1) f_s)`` (up-chirp;
+        mirrored for a down-chirp, where targets have negative beat
+        frequencies).  ``band_start = -0.5`` is ``np.fft.fftfreq``; the default
+        ``-0.1`` keeps near-DC leakage and images on the negative side and every
+        target up to ``0.9 max_range`` on the positive side (about the usable
+        complex IF band).
+        """
+        fs = self.radar.sample_rate
+        sgn = 1.0 if self.radar.slope > 0 else -1.0
+        f = sgn * np.fft.fftfreq(n or self.radar.num_samples, d=1.0 / fs)
+        lo = band_start * fs
+        return sgn * (lo + np.mod(f - lo, fs))
+
+    @property
+    def band_ranges(self) -> np.ndarray:
+        """Range of each DFT bin in the IF band of :meth:`band_frequencies`, ``[N]`` [m]:
+        ``0 .. 0.9 max_range`` for targets, small negative values for the bins
+        just below DC (leakage, images)."""
+        return self.band_frequencies() * SPEED_OF_LIGHT / (2.0 * self.radar.slope)
 
     def delay_of_range(self, r):
         """Round-trip delay [s] of a monostatic range ``r`` [m]."""

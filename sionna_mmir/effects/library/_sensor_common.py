@@ -53,23 +53,8 @@ def check_int(owner: str, name: str, value, lo: int, hi: int) -> int:
 
 # -------------------------------------------------------------- frequencies
 def band_frequencies(ctx, band_start: float, n: int | None = None) -> np.ndarray:
-    """Physical beat frequency of every range bin, ``[n]`` [Hz] (``np.fft`` order).
-
-    ``n`` is the DFT length (default ``N``, the samples per chirp).
-
-    Complex samples only fix a bin's frequency modulo ``f_s``.  The bins are
-    mapped into the band ``[band_start f_s, (band_start + 1) f_s)`` (up-chirp;
-    mirrored for a down-chirp, where targets have negative beat frequencies).
-    ``band_start = -0.5`` is ``np.fft.fftfreq``; ``-0.1`` keeps near-DC
-    leakage and images on the negative side and every target up to
-    ``0.9 max_range`` on the positive side (about the usable complex IF band).
-    """
-    fs = ctx.radar.sample_rate
-    sgn = 1.0 if ctx.radar.slope > 0 else -1.0
-    f = sgn * np.fft.fftfreq(n or ctx.radar.num_samples, d=1.0 / fs)
-    lo = band_start * fs
-    mapped = lo + np.mod(f - lo, fs)
-    return sgn * mapped
+    """:meth:`EffectContext.band_frequencies <sionna_mmir.effects.context.EffectContext.band_frequencies>`."""
+    return ctx.band_frequencies(band_start, n)
 
 
 def legendre_basis(u: np.ndarray, degrees) -> np.ndarray:
@@ -243,10 +228,11 @@ class RowExtension:
     def _build(self, x: np.ndarray):
         n = x.shape[-1]
         rows = np.asarray(x, complex).reshape(-1, n)
-        if self.margin == 0 or n <= 2 * self.order or not np.any(rows != 0):
+        order = self.effective_order(n)
+        if self.margin == 0 or order < 1 or not np.any(rows != 0):
             return None
-        a = prediction_coefficients(rows, self.order)
-        b = prediction_coefficients(rows[:, ::-1], self.order)
+        a = prediction_coefficients(rows, order)
+        b = prediction_coefficients(rows[:, ::-1], order)
         E = extension_matrix(a, b, n, self.margin)
         ext = _rows_times(rows, E.T)
         rms = np.sqrt(np.mean(np.abs(rows) ** 2))
@@ -255,6 +241,12 @@ class RowExtension:
         if not np.isfinite(edge) or edge > MAX_EXTENSION_GAIN * rms:
             return None
         return edge_taper(n, self.margin)[:, None] * E
+
+    def effective_order(self, n: int) -> int:
+        """Predictor order used for rows of ``n`` samples: ``order``, capped at
+        ``n // 4`` so every row gives at least three times as many prediction
+        equations as unknowns (short rows, e.g. 64 samples, keep an extension)."""
+        return min(self.order, n // 4)
 
     def fit(self, model: np.ndarray):
         """Freeze the predictor on ``model`` (complex NumPy ``[..., N]``)."""

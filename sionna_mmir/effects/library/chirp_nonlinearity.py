@@ -3,10 +3,16 @@
 Model of the error, Legendre polynomials in the normalised fast time
 ``u = 2 (t - t_0) / (t_{N-1} - t_0) - 1 in [-1, 1]`` over the ADC window::
 
-    e(t) = sum_d c_d P_d(u)            [Hz],  default degrees d = 2, 3
+    e(t) = sum_d c_d P_d(u)            [Hz],  default degrees d = 0, 1, 2, 3
 
-(``d = 0`` would be a start-frequency error, ``d = 1`` a slope error; they
-are left to the radar configuration / delay calibration by default.)
+``d = 0`` is a start-frequency error and ``d = 1`` a slope error *over the
+ADC window*.  They are kept by default: a VCO's ramp error is small against
+its best straight line over the whole ramp, but the ADC window is only part
+of the ramp, and over that part a curved error has a mean and a tilt of the
+same size as its curvature (a quadratic over the ramp seen in a window from
+14 % to 55 % of it: ``|c_0|, |c_1| > |c_2|``).  Neither is degenerate with a
+per-channel delay or a constant beat-frequency offset: both act in
+proportion to each path's delay.
 
 Derivation.  The chirp's phase (in cycles) is ``psi(t) = f0 t + S t^2 / 2 +
 E(t)`` with ``E'(t) = e(t)``.  A path of delay ``tau`` mixes to the beat
@@ -81,7 +87,7 @@ class ChirpNonlinearity(Effect):
     stage = 1
     description = "chirp instantaneous-frequency error e(t) (Legendre series), beat time warp"
 
-    def __init__(self, degrees=(2, 3), taylor_order: int = 3, band_start: float = -0.1,
+    def __init__(self, degrees=(0, 1, 2, 3), taylor_order: int = 3, band_start: float = -0.1,
                  extension: int = 32, prediction_order: int = 32):
         owner = type(self).__name__
         self.degrees = _check_degrees(owner, degrees)

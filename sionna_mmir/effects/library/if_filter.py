@@ -35,9 +35,9 @@ grid, and cut back to the window (error about -40 dB in the tests);
 Parameters: ``log_fc`` ``[2]`` = (``log10(f_hp / kHz)``, ``log10(f_lp / kHz)``).
 Stage 2 (IF).
 
-Initial values: the per-bin ratio ``h_k = sum conj(X) Y / sum |X|^2`` of
-measured to model spectra is matched, up to one complex gain, by ``H`` on a
-grid of corner pairs (weighted least squares), the best pair wins.
+Initial values: on a grid of corner pairs, the filtered (extended) model is
+fitted to the data up to one complex gain in closed form; the pair that
+explains the most energy wins (see :meth:`IFFilter._init`).
 """
 from __future__ import annotations
 
@@ -124,23 +124,48 @@ class IFFilter(Effect):
         return {"log_fc": ParamSpec([hp, lp], lower=[hl, ll], upper=[hh, lh], unit="log10 kHz")}
 
     def _init(self, ctx, model, data, hb, lb):
-        X = np.fft.fft(model, axis=-1)
-        Y = np.fft.fft(data, axis=-1)
-        w = np.sum(np.abs(X) ** 2, axis=(0, 1, 2, 3))
-        if not np.any(w > 0):
+        """Best ``(log f_hp, log f_lp)`` on a 32 x 32 grid, by the least-squares
+        fit of ``g * crop(IDFT(H DFT(extend(model))))`` to ``data`` (one complex
+        gain ``g`` per grid point, in closed form).
+
+        The filtered model is linear in the response samples ``H_k`` on the
+        extended grid: ``crop(IDFT(H Xe)) = sum_k H_k B_k`` with
+        ``<B_k, B_l> = sum_rows conj(Xe_k) Xe_l D_kl / n^2`` (``D`` the window's
+        Dirichlet kernel) and ``<B_k, y> = sum_rows conj(Xe_k) Ye_k / n`` (``Ye``
+        the DFT of the data placed in the window), so each grid point costs
+        one ``n x n`` quadratic form: the explained energy
+        ``|H^H v|^2 / H^H G H``.  With the same row extension as the forward
+        model, off-bin tones are filtered in steady state here too (a plain
+        per-bin ratio of DFTs confuses the high-pass's phase with a low-pass
+        delay).
+        """
+        N = ctx.radar.num_samples
+        ext = self.extension
+        E = ext.matrix if ext.n == N else None
+        xe = ext.extend_numpy(model, E).reshape(-1, ext.length if E is not None else N)
+        n = xe.shape[-1]
+        m = ext.margin if E is not None else 0
+        ye = np.zeros_like(xe)
+        ye[:, m:m + N] = data.reshape(-1, N)
+        Xe, Ye = np.fft.fft(xe, axis=-1), np.fft.fft(ye, axis=-1)
+        if not np.any(Xe != 0):
             return hb[0], lb[1]
-        h = np.sum(np.conj(X) * Y, axis=(0, 1, 2, 3)) / np.where(w > 0, w, 1.0)
-        f = band_frequencies(ctx, self.band_start)
-        bin_hz = ctx.radar.sample_rate / ctx.radar.num_samples
-        best = (np.inf, hb[0], lb[1])
+        v = np.sum(np.conj(Xe) * Ye, axis=0) / n
+        win = np.exp(2j * np.pi * np.arange(n) * m / n) * np.fft.fft(
+            (np.arange(n) < N).astype(float)).conj() / n ** 2      # D_kl / n^2 = win[l - k]
+        dk = (np.arange(n)[None, :] - np.arange(n)[:, None]) % n
+        G = (np.conj(Xe).T @ Xe) * win[dk]
+        f = band_frequencies(ctx, self.band_start, n)
+        bin_hz = ctx.radar.sample_rate / n
+        best = (-np.inf, hb[0], lb[1])
         for hp in np.linspace(hb[0], hb[1], 32):
             for lp in np.linspace(lb[0], lb[1], 32):
                 H = response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
                                    bin_hz)
-                g = np.sum(w * np.conj(H) * h) / np.sum(w * np.abs(H) ** 2)
-                cost = np.sum(w * np.abs(h - g * H) ** 2)
-                if cost < best[0]:
-                    best = (cost, hp, lp)
+                den = np.real(np.conj(H) @ G @ H)
+                gain = np.abs(np.vdot(H, v)) ** 2 / den if den > 0 else -np.inf
+                if gain > best[0]:
+                    best = (gain, hp, lp)
         return float(best[1]), float(best[2])
 
     # --------------------------------------------------------------- forward
