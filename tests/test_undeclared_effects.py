@@ -64,10 +64,10 @@ def _dc_offset(radar, clean, rng):
     return clean + d[None, None, :, None, None]
 
 
-def _delay_offset(radar, clean, rng):
+def _delay_offset(radar, clean, rng, targets=TARGETS):
     dt = rng.uniform(-60e-12, 60e-12, radar.num_tx)[:, None] + \
         rng.uniform(-60e-12, 60e-12, radar.num_rx)[None]
-    return _render(radar, TARGETS, dtau=dt)
+    return _render(radar, targets, dtau=dt)
 
 
 def _frequency_offset(radar, clean, rng):
@@ -104,10 +104,14 @@ def _chirp_nonlinearity(radar, clean, rng):
 
 
 def _if_filter(radar, clean, rng):
-    f = np.fft.fftfreq(radar.num_samples, 1 / radar.sample_rate)
+    # first-order high-pass in steady state: the analog filter runs long before the
+    # ADC window opens, so each path's beat tone (frequency S tau) leaves it
+    # multiplied by H at that frequency
     fc = 250e3
-    h = (1j * f / fc) / (1 + 1j * f / fc)                           # first-order high-pass
-    return np.fft.ifft(np.fft.fft(clean, axis=-1) * h, axis=-1)
+    a, tau, _ = _paths(radar, TARGETS)
+    f = radar.slope * tau
+    h = (1j * f / fc) / (1 + 1j * f / fc)
+    return synthesize_adc(radar, a * h, tau)[None].astype(np.complex128)
 
 
 def _adc_clipping(radar, clean, rng):
@@ -172,11 +176,7 @@ def _noise_db(measured, noise):
 
 
 KNOWN_FAILURES = {
-    # measured 2026-11-21; kept strict so a fix shows up as XPASS
-    "chirp_nonlinearity": "ranked below phase_noise: the variance skirt absorbs the smearing "
-                          "before the 2-parameter warp is tried from a good start",
-    "if_filter": "ranked first, but the fitted response leaves the residual 6.6 dB above the "
-                 "noise floor (-28.2 vs -34.8 dB)",
+    # measured failures, kept strict so a fix shows up as XPASS (none at present)
 }
 
 
@@ -215,9 +215,7 @@ def test_02_clean_capture_adopts_nothing():
 
 @pytest.mark.parametrize("pair", [
     ("channel_gain", "coupling"), ("iq_imbalance", "dc_offset"),
-    pytest.param(("delay_offset", "missing_scatterer"), marks=pytest.mark.xfail(
-        strict=True, reason="measured: residual stays at -14 dB (the scatterer initialised "
-                            "before the delays are known lands off the true position)"))])
+    ("delay_offset", "missing_scatterer")])
 def test_03_pairs_of_effects_are_both_found(pair):
     radar = _radar()
     rng = np.random.default_rng(11)
@@ -225,7 +223,8 @@ def test_03_pairs_of_effects_are_both_found(pair):
     first, second = pair
     x = SINGLE[first](radar, clean, rng)
     if first == "delay_offset":              # the missing scatterer sits behind the same delays
-        x = x + _render(radar, [(2.6, np.radians(30), 0.45)])
+        x = _delay_offset(radar, clean, np.random.default_rng(11),
+                          TARGETS + ((2.6, np.radians(30), 0.45),))
     else:
         x = SINGLE[second](radar, x, rng)
     noise = _noise(clean.shape, rng)
@@ -251,8 +250,6 @@ def test_04_moving_target_over_frames():
         [c.name for c in (d.adoptions[0].candidates if d.adoptions else d.last_candidates)]
 
 
-@pytest.mark.xfail(strict=True, reason="measured: noise_floor (a variance effect) is adopted "
-                   "for the one-channel spur; its per-Rx level absorbs the spur's power")
 def test_05_effect_outside_the_library_is_not_misnamed_and_is_localised():
     """A narrow-band spur in one virtual channel only (an interferer on one Rx path
     of one Tx slot): no library effect predicts it on held-out channels."""

@@ -33,6 +33,9 @@ def add_parser(sub) -> None:
     p.add_argument("--effects", default=None,
                    help="comma-separated candidate effects (default: the whole library)")
     p.add_argument("--folds", type=int, default=3)
+    p.add_argument("--fold-groups", choices=("auto", "channel", "cell"), default="auto",
+                   help="cross-validation hold-out unit: whole virtual channels (auto: when "
+                        "the array allows) or single (frame, Tx, Rx, chirp) cells")
     p.add_argument("--max-rounds", type=int, default=6)
     p.add_argument("--penalty", type=float, default=1.0, help="nats per parameter")
     p.add_argument("--seed", type=int, default=0)
@@ -129,7 +132,8 @@ def cmd_residual(args) -> int:
     cands = candidate_effects(args.effects)
     bar = tqdm(desc="candidates", unit="fit", leave=False)
     d = diagnose(model, cands, folds=args.folds, max_rounds=args.max_rounds,
-                 penalty=args.penalty, seed=args.seed, progress=lambda name: bar.update(1))
+                 penalty=args.penalty, seed=args.seed, groups=args.fold_groups,
+                 progress=lambda name: bar.update(1))
     bar.close()
     write_report(d, args.out, os.path.basename(str(args.capture)), source,
                  overwrite=args.overwrite)

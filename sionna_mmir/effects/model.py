@@ -80,7 +80,8 @@ class EffectModel:
         self.base_gain = complex(np.vdot(b, y) / eb) if self.has_base else 1.0
         self.y = y
         self.b = b * self.base_gain
-        self.Y = ops.tensor(np.fft.fft(y, axis=-1, norm="ortho"))
+        self.Y_numpy = np.fft.fft(y, axis=-1, norm="ortho")
+        self.Y = ops.tensor(self.Y_numpy)
         self.b_t = ops.tensor(self.b)
         r = y - self.b
         self.nuisance = Component(
@@ -102,14 +103,47 @@ class EffectModel:
         """
         model, _ = self.mean_variance_numpy()
         residual = self.y - model
-        if cells is not None:
-            keep = np.asarray(cells, bool)[..., None]
+        keep = None if cells is None else np.asarray(cells, bool)[..., None]
+        if keep is not None:
             model, residual = model * keep, residual * keep
+        if effect.stage == 0:
+            h = self.channel_response(keep)
+            model, residual = model / h, residual / h
         specs = effect.param_specs(self.ctx, model, residual)
         comp = Component(effect=effect, specs=specs,
                          values={k: s.init.copy() for k, s in specs.items()})
         self.components.append(comp)
         return comp
+
+    def channel_response(self, keep=None) -> np.ndarray:
+        """Per-channel complex response of the current sensor chain, ``[1, T, R, 1, 1]``.
+
+        ``h[t, r] = sum conj(p) m / sum |p|^2`` over frames, chirps and samples
+        (the cells in ``keep``), with ``p = g b`` the base render before any
+        effect and ``m`` the current mean model.  A scene effect (stage 0) adds
+        paths *before* the sensor chain, so its data-driven initial value is
+        computed on the residual referred back through the chain, ``r / h``:
+        per-channel gains and delays adopted earlier would otherwise scramble
+        the phases its angle search relies on.  All ones without a base or
+        without sensor-stage mean effects, and where ``|h|`` is under a tenth
+        of its median (a channel the base does not reach).
+        """
+        T, R = self.ctx.shape[1:3]
+        ones = np.ones((1, T, R, 1, 1), complex)
+        if not self.has_base or not any(c.effect.kind == "mean" and c.effect.stage > 0
+                                        for c in self.components):
+            return ones
+        gain = self.nuisance.values["gain"]
+        pre = self.b * complex(gain[0], gain[1])
+        post, _ = self.mean_variance_numpy()
+        if keep is not None:
+            pre, post = pre * keep, post * keep
+        num = np.sum(np.conj(pre) * post, axis=(0, 3, 4), keepdims=True)
+        den = np.sum(np.abs(pre) ** 2, axis=(0, 3, 4), keepdims=True)
+        h = num / np.where(den > 0, den, 1.0)
+        mag = np.abs(h)
+        ok = (den > 0) & (mag > 0.1 * np.median(mag[den > 0])) if np.any(den > 0) else den > 0
+        return np.where(ok, h, ones)
 
     def remove(self, comp: Component):
         self.components.remove(comp)
@@ -194,6 +228,43 @@ class EffectModel:
         mask, n = self.mask_tensor(cells)
         with dr.suspend_grad():
             return ops.item(self.loss(self._tensors(), mask, n))
+
+    def nll_profiled(self, cells=None) -> float:
+        """Mean NLL per complex sample over ``cells`` with the white floor
+        ``sigma^2`` re-estimated on those cells (the NLL minimised over
+        ``sigma^2`` alone, every other parameter as is).
+
+        The held-out score of the diagnosis: a ``sigma^2`` fitted on training
+        cells carries whatever residual those cells cannot explain, so a
+        candidate that shrinks it there (by absorbing a disturbance confined
+        to the training cells) would otherwise be credited on every held-out
+        cell through ``log sigma^2``.  Profiling the one scale parameter on the
+        scored cells, for the base and the candidate alike, credits only what
+        a candidate predicts there.  Without variance effects it is
+        ``log(mean |Y - X|^2) + 1``.
+        """
+        from scipy.optimize import minimize_scalar
+
+        x, v = self.mean_variance_numpy()
+        cells = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
+        if cells.shape != self.ctx.shape[:4] or not cells.any():
+            raise InputValueError(f"mask: shape {cells.shape} != cells {self.ctx.shape[:4]} "
+                                  "or selects no cells")
+        Y = self.Y_numpy[cells]
+        X = np.fft.fft(x, axis=-1, norm="ortho")[cells]
+        r2 = np.abs(Y - X) ** 2
+        extra = (v - float(np.exp(self.nuisance.values["log_noise"][0])))[cells]
+        extra = np.maximum(extra, 0.0)
+        if not np.any(extra > 0):
+            return float(np.log(max(np.mean(r2), 1e-30)) + 1.0)
+
+        def f(ls):
+            tot = np.exp(ls) + extra
+            return float(np.mean(r2 / tot + np.log(tot)))
+
+        hi = np.log(max(np.mean(r2), 1e-30)) + 1.0
+        return float(minimize_scalar(f, bounds=(hi - 40.0, hi), method="bounded",
+                                     options={"xatol": 1e-6}).fun)
 
     def loss(self, tens, mask, n):
         """Masked mean NLL ``sum mask (|Y - X|^2 / v + log v) / n`` as a Dr.Jit value (AD)."""

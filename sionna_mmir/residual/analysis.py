@@ -8,8 +8,12 @@ capture's energy, in dB, or as fractions of the residual energy.
 domain                      what it shows
 ==========================  ==================================================
 ``range_profile``           residual / measured energy per range bin ``[N]``
-                            (``np.fft`` order; the negative-frequency half is
-                            the image band: IQ imbalance lives there)
+                            (``np.fft`` order, ranges in ``bin_ranges``: the
+                            complex IF band ``[-0.1, 0.9) f_s`` of
+                            :meth:`EffectContext.band_frequencies`)
+``negative_frequency_half`` share in bins ``N/2 .. N-1`` (a real IF's negative
+                            frequencies: I/Q images of targets below half
+                            the maximum range, and those beyond it)
 ``dc``                      share in bin 0 (DC offset)
 ``near_range``              share below ``near_range_m`` (coupling / leakage)
 ``channels``                share per virtual channel ``[T, R]`` and per chip
@@ -56,9 +60,9 @@ def residual_domains(ctx: EffectContext, measured, model, near_range_m: float = 
     Y = np.fft.fft(y, axis=-1, norm="ortho")
     per_bin = np.sum(np.abs(R) ** 2, axis=(0, 1, 2, 3))
     per_bin_meas = np.sum(np.abs(Y) ** 2, axis=(0, 1, 2, 3))
-    freqs = ctx.beat_frequencies
-    ranges = ctx.bin_ranges
-    neg = freqs < 0
+    freqs = ctx.band_frequencies()
+    ranges = ctx.band_ranges
+    neg = ctx.beat_frequencies < 0
     near = (ranges >= 0) & (ranges < near_range_m)
     per_ch = np.sum(np.abs(r) ** 2, axis=(0, 3, 4))                     # [T, R]
     chips = ctx.num_chips

@@ -69,14 +69,16 @@ def _ra(ctx, adc):
 def _range_profile(path, ctx, measured, first_res, final_res):
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 3.4))
-    r = np.fft.fftshift(ctx.bin_ranges)
+    order = np.argsort(ctx.band_frequencies())
+    r = ctx.band_ranges[order]
     e = float(np.sum(np.abs(measured) ** 2))
     for name, x in (("measured", measured), ("residual, first fit", first_res),
                     ("residual, final", final_res)):
         p = np.sum(np.abs(np.fft.fft(x, axis=-1, norm="ortho")) ** 2, axis=(0, 1, 2, 3)) / e
-        ax.plot(r, 10 * np.log10(np.maximum(np.fft.fftshift(p), 1e-30)), label=name, lw=1)
+        ax.plot(r, 10 * np.log10(np.maximum(p[order], 1e-30)), label=name, lw=1)
     ax.axvline(0, color="k", lw=0.5)
-    ax.set_xlabel("range of the beat frequency [m] (negative: image half)")
+    ax.set_xlabel("range of the beat frequency [m] (IF band -0.1 .. 0.9 f_s; negative: "
+                  "below DC)")
     ax.set_ylabel("energy per bin [dB re. capture]")
     ax.legend(fontsize=8)
     fig.tight_layout()
