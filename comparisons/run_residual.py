@@ -47,7 +47,8 @@ def corner(name, measured, base_dir, out):
     from sionna_mmir.captures.capture import Capture
     from sionna_mmir.captures.loader import load_capture
     from sionna_mmir.effects.library.coupling import coupling_profile
-    from sionna_mmir.residual.evidence import coupling_evidence, peak_evidence
+    from sionna_mmir.residual.evidence import (coupling_evidence, near_range_evidence,
+                                               peak_evidence)
     from sionna_mmir.residual.report import write_report
 
     cap = load_capture(measured / "mmwcas_corner" / name)
@@ -62,6 +63,10 @@ def corner(name, measured, base_dir, out):
                  "mmIR fit of the corner scene (comparisons/residual_base.py)", overwrite=True)
     ev = {"peaks_first": peak_evidence(d.first_mean[0].mean(axis=2), cap.extras),
           "peaks_final": peak_evidence(d.model.mean_adc()[0].mean(axis=2), cap.extras)}
+    ev["near_range_residual"] = {
+        stage: near_range_evidence(res, cap.radar, measured / "coloradar_calib" / "cascade")
+        for stage, res in (("first", cap.frames - d.first_mean),
+                           ("final", d.model.residual()))}
     comp = _component(d, "coupling")
     if comp is not None:
         prof = coupling_profile(comp.values, d.model.ctx, scale=d.model.scale)

@@ -114,7 +114,10 @@ def _header():
 def _markdown(d, doc: dict) -> str:
     L = [f"# sionna-mmir residual: {doc['capture']}", "",
          f"Base model: {doc['model_source']}. Candidates: {', '.join(d.settings['candidates'])}. "
-         f"{d.settings['folds']}-fold cross-validation over (frame, Tx, Rx, chirp) cells, "
+         f"{d.settings['folds']}-fold cross-validation holding out "
+         + ("whole virtual channels (Tx-Rx pairs, all frames and chirps)"
+            if d.settings.get("fold_groups") == "channel" else "(frame, Tx, Rx, chirp) cells")
+         + f", held-out white floor profiled, mean effects ranked before variance effects, "
          f"penalty {d.settings['penalty_nats_per_param']} nats per parameter.", "",
          "## Error before and after", "", _header(), _row("first fit", d.first)]
     for a in d.adoptions:
