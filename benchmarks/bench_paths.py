@@ -66,6 +66,7 @@ recorded beside them.
 
 Run:  python benchmarks/bench_paths.py [--quick | --full-signal] [--out results.json]
           [--blas-threads N] [--mem-limit-gib G] [--no-memory-check] [--depth D]
+          [--triangles 1e5,1e6 --rays 1e4,1e5 [--signal] [--repeat N]] [--rounds R]
 """
 from __future__ import annotations
 
@@ -92,8 +93,13 @@ SIONNA_THICKNESS = 0.2
 
 
 # --------------------------------------------------------------------------- plan
-def plan(quick: bool = False, depth: int = 3, memory_check: bool = True, full_signal: bool = False):
+def plan(quick: bool = False, depth: int = 3, memory_check: bool = True, full_signal: bool = False,
+         triangles=None, rays=None, signal: bool = False, repeat: int | None = None):
     """List of jobs ``dict(triangles, rays, depth, solver, stages, repeat, warmup)``.
+
+    ``triangles`` / ``rays`` (sequences): a custom grid instead -- every
+    (triangles, rays) pair, the paths stages only (all four with ``signal``),
+    ``repeat`` timed runs per stage (default 2), no memory check.
 
     Default (about 6-8 minutes on 2 cores): the headline at 100k triangles /
     1e4 rays (all four stages); triangles 1e4 and 1e6 at 1e4 rays and 1e5 rays
@@ -106,7 +112,11 @@ def plan(quick: bool = False, depth: int = 3, memory_check: bool = True, full_si
     """
     both = ("fwd_paths", "fb_paths", "fwd_signal", "fb_signal")
     paths = both[:2]
-    if quick:
+    if triangles or rays:
+        cfgs = [(int(t), int(r), both if signal else paths, int(repeat or 2))
+                for t in (triangles or [100_000]) for r in (rays or [10_000])]
+        memory_check = False
+    elif quick:
         cfgs = [(10_000, 1_000, both, 2)]
         memory_check = False
     else:
@@ -558,28 +568,84 @@ def _default_mem_limit():
 
 
 def run(quick=False, depth=3, mem_limit_gib=None, memory_check=True, log=None, blas_threads=None,
-        full_signal=False):
-    """Run the plan; returns ``dict(meta, jobs, rows, ratios, breakdown, memory)``.
+        full_signal=False, triangles=None, rays=None, signal=False, repeat=None, rounds=1):
+    """Run the plan; returns ``dict(meta, jobs, rows, ratios, breakdown, memory, round_ratios)``.
 
     ``blas_threads`` sets ``OPENBLAS_NUM_THREADS`` in the workers (default:
     the environment's; the ADC adjoint's small batched complex products are
-    very sensitive to it when the cores are shared).
+    very sensitive to it when the cores are shared).  ``triangles``, ``rays``,
+    ``signal``, ``repeat``: a custom grid (see :func:`plan`).  ``rounds``:
+    run the whole plan that many times, one job after the other (the two
+    solvers of a configuration back to back in every round), and keep each
+    stage's best over the rounds; ``round_ratios`` lists the ratio of every
+    round (the two solvers measured minutes, not hours, apart).
     """
     import platform
 
     mem_limit_gib = mem_limit_gib or _default_mem_limit()
     t0 = time.perf_counter()
     load0 = os.getloadavg()
-    jobs = [_run_job(j, mem_limit_gib, log=log, blas_threads=blas_threads)
-            for j in plan(quick, depth, memory_check, full_signal)]
+    jobs_plan = plan(quick, depth, memory_check, full_signal, triangles, rays, signal, repeat)
+    raw, loads = [], []
+    for rnd in range(max(1, int(rounds))):
+        loads.append(os.getloadavg())
+        for j in jobs_plan:
+            out = _run_job(j, mem_limit_gib, log=log, blas_threads=blas_threads)
+            out["round"] = rnd
+            raw.append(out)
+    loads.append(os.getloadavg())
+    jobs = _merge_rounds(raw) if rounds > 1 else raw
     res = dict(meta=dict(quick=quick, full_signal=full_signal, depth=depth, mem_limit_gib=mem_limit_gib,
                          cpu_count=os.cpu_count(), machine=platform.machine(),
                          blas_threads=blas_threads or os.environ.get("OPENBLAS_NUM_THREADS"),
-                         loadavg_start=load0, loadavg_end=os.getloadavg(),
-                         total_s=time.perf_counter() - t0),
+                         loadavg_start=load0, loadavg_end=os.getloadavg(), loadavg_rounds=loads,
+                         rounds=int(rounds), total_s=time.perf_counter() - t0),
                jobs=jobs)
     res.update(summarise(jobs))
+    res["round_ratios"] = _round_ratios(raw)
     return res
+
+
+def _job_key(jb):
+    return (jb["triangles"], jb["rays"], jb["depth"], jb["solver"], bool(jb.get("memory_check")))
+
+
+def _merge_rounds(raw):
+    """One result per job: each stage's best round (``rounds_best_s``: every round's best)."""
+    merged = {}
+    for out in raw:
+        k = _job_key(out["job"])
+        m = merged.setdefault(k, dict(job=out["job"], setup=out["setup"], stages={}, error=out["error"]))
+        m["setup"] = m["setup"] or out["setup"]
+        for st, ev in out["stages"].items():
+            cur = m["stages"].get(st)
+            per = (cur or {}).get("rounds_best_s", []) + [ev.get("best_s") if ev.get("status") == "ok"
+                                                         else None]
+            better = cur is None or (ev.get("status") == "ok" and
+                                     (cur.get("status") != "ok" or ev["best_s"] < cur["best_s"]))
+            m["stages"][st] = dict(ev if better else cur, rounds_best_s=per)
+    return list(merged.values())
+
+
+def _round_ratios(raw):
+    """``[dict(triangles, rays, stage, round, ours_s, sionna_s, ratio)]`` per round."""
+    by = {}
+    for out in raw:
+        jb = out["job"]
+        if jb.get("memory_check"):
+            continue
+        by[(out.get("round", 0), jb["triangles"], jb["rays"], jb["solver"])] = out
+    rows = []
+    for (rnd, tri, rays, solver), m in sorted(by.items()):
+        s = by.get((rnd, tri, rays, "sionna"))
+        if solver != "mmir" or s is None:
+            continue
+        for st in ("fwd_paths", "fb_paths", "fwd_signal", "fb_signal"):
+            a, b = _get(m, st), _get(s, st)
+            if a is not None and b:
+                rows.append(dict(triangles=tri, rays=rays, stage=st, round=rnd, ours_s=a, sionna_s=b,
+                                 ratio=a / b))
+    return rows
 
 
 def _get(job, stage, key="best_s"):
@@ -711,6 +777,21 @@ def to_markdown(res):
                        f"{_f(m.get('memavail_drop_gib'), '{:.2f}')} | "
                        f"{_f(m.get('drjit_watermark_gib'), '{:.2f}')} | "
                        f"{_f(m['paths'], '{:,}')} | {_f(m['pair_paths'], '{:.2e}')} | {m['note'] or ''} |")
+    rr = res.get("round_ratios") or []
+    if meta.get("rounds", 1) > 1 and rr:
+        out += ["", f"Per-round ratios ({meta['rounds']} rounds; load average at the start of each "
+                "round: " + ", ".join(f"{x[0]:.1f}" for x in meta.get("loadavg_rounds", [])) + "):", "",
+                "| triangles | rays | stage | ours / Sionna per round | median |",
+                "|---:|---:|:---|:---|---:|"]
+        groups = {}
+        for r in rr:
+            groups.setdefault((r["rays"], r["triangles"], r["stage"]), []).append(r)
+        for (rays, tri, st), g in sorted(groups.items()):
+            vals = sorted(x["ratio"] for x in g)
+            med = vals[len(vals) // 2] if len(vals) % 2 else 0.5 * (vals[len(vals) // 2 - 1] + vals[len(vals) // 2])
+            out.append(f"| {tri:,} | {rays:.0e} | {st} | "
+                       + ", ".join(f"{x['ours_s']:.3f}/{x['sionna_s']:.3f}={x['ratio']:.2f}" for x in g)
+                       + f" | {med:.2f} |")
     out += ["", f"Total benchmark wall time: {meta['total_s']:.0f} s."]
     return "\n".join(out)
 
@@ -734,14 +815,26 @@ def main(argv=None):
     p.add_argument("--full-signal", action="store_true",
                    help="signal (ADC / CFR) stages at every mesh and ray count (about 15 min)")
     p.add_argument("--no-memory-check", action="store_true", help="skip the 1M-triangle / 1e6-ray runs")
+    p.add_argument("--triangles", default=None,
+                   help="custom grid: comma-separated triangle counts, e.g. 1e5,1e6 (paths stages only)")
+    p.add_argument("--rays", default=None, help="custom grid: comma-separated ray counts, e.g. 1e4,1e5,1e6")
+    p.add_argument("--signal", action="store_true", help="custom grid: the signal stages too")
+    p.add_argument("--repeat", type=int, default=None, help="custom grid: timed runs per stage (default 2)")
+    p.add_argument("--rounds", type=int, default=1,
+                   help="run the plan this many times (solvers interleaved); best of the rounds, "
+                        "and the per-round ratios")
     p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.worker:
         worker(json.loads(args.worker))
         return
+    def nums(text):
+        return None if not text else [int(float(x)) for x in text.split(",") if x.strip()]
     res = run(quick=args.quick, depth=args.depth, mem_limit_gib=args.mem_limit_gib,
               memory_check=not args.no_memory_check, log=_log,
-              blas_threads=args.blas_threads, full_signal=args.full_signal)
+              blas_threads=args.blas_threads, full_signal=args.full_signal,
+              triangles=nums(args.triangles), rays=nums(args.rays), signal=args.signal,
+              repeat=args.repeat, rounds=args.rounds)
     print(to_markdown(res))
     if args.out:
         with open(args.out, "w") as f:

@@ -126,7 +126,7 @@ def check(h: Harness, owner, key, index, step, sync=True):
 
 
 def _assert_close(ad, fd, what):
-    assert np.isfinite(ad) and fd != 0, (what, ad, fd)
+    assert np.isfinite(ad) and np.isfinite(fd) and fd != 0, (what, ad, fd)
     assert abs(ad - fd) <= RTOL * abs(fd), f"{what}: AD {ad:.6e} vs FD {fd:.6e}"
 
 
@@ -249,7 +249,8 @@ def test_09_multibounce_gradients():
     _assert_close(ad, fd, "sigma_h (depth 3)")
     floor_obj = sc.mesh_objects["floor"]
     fv = _centre_vertex(floor_obj, [1.75, 0.0, -0.4])
-    ad, fd = check(h, floor_obj, "vertex_positions", (fv, 2), 1e-3)
+    # 0.1 mm: with frozen samples the FD converges (-34 % at 1 mm, -3.6 % at 0.3 mm)
+    ad, fd = check(h, floor_obj, "vertex_positions", (fv, 2), 1e-4)
     _assert_close(ad, fd, "floor vertex z (depth 3)")
 
 

@@ -91,8 +91,13 @@ class Tape:
             self._pos += 1
             return out
         out = dr.detach(x)
+        dr.schedule(out)      # stored with the next evaluation, not recomputed by every reader
         self.values.append(out)
         return out
+
+    def freeze_call(self, fn, *args):
+        """``freeze(fn(*args))``; on replay ``fn`` is not called (e.g. a shadow ray)."""
+        return self.freeze(None if self.replaying else fn(*args))
 
 
 class SceneGeometry:
@@ -111,23 +116,11 @@ class SceneGeometry:
         self.scene = scene
         self.names = list(scene.mesh_objects)
         objs = [scene.mesh_objects[n] for n in self.names]
-        v_off = np.cumsum([0] + [o.vertex_positions.shape[0] for o in objs])
-        f_off = np.cumsum([0] + [len(o.faces) for o in objs])
-        self.face_offset = f_off
-        faces = np.concatenate([o.faces + v_off[i] for i, o in enumerate(objs)]).astype(np.uint32)
-        self.faces = mi.UInt32(faces.ravel())
-        self.num_faces = len(faces)
+        (self.face_offset, self.faces, self.num_faces, self._shape_table,
+         self._face_offset) = _static_tables(scene, self.names, objs)
         self.positions = dr.concat([o.vertex_positions.array for o in objs])
         self.normals = dr.concat([o.vertex_normals.array for o in objs])
         self.materials = dr.concat([o.vertex_materials.array for o in objs])
-        # Mitsuba shape registry id -> object index
-        ids = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(scene.mesh(n)))[0])
-               for n in self.names]
-        table = np.full(max(ids) + 1, 0xFFFFFFFF, dtype=np.uint32)
-        for i, sid in enumerate(ids):
-            table[sid] = i
-        self._shape_table = mi.UInt32(table)
-        self._face_offset = mi.UInt32(f_off[:-1].astype(np.uint32))
         #: recorded hits (list) when recording, or a list to replay (popped in order)
         self.record: list | None = None
         self.replay: list | None = None
@@ -137,32 +130,51 @@ class SceneGeometry:
 
         Bounds: ``eps' >= 1``, ``eps'' >= 0``, ``sigma_h >= 0``, ``l_c > 0``,
         ``0 <= tau <= 1``, ``d >= 0``; shading normals must be non-zero.
+
+        A tensor that passed is not checked again while it is unchanged: each
+        object remembers the Dr.Jit variable (index, shape; the variable is
+        held, so its index cannot be reused) of every tensor that passed.
+        Assigning a new tensor, or updating one in place through Dr.Jit
+        (``t[...] = x``, ``dr.scatter``: a new variable), makes the next call
+        check it again.
         """
         from ..errors import InputValueError
 
         for name in self.names:
             obj = self.scene.mesh_objects[name]
-            for key in ("vertex_positions", "vertex_normals", "vertex_materials"):
-                a = np.asarray(dr.detach(getattr(obj, key)))
+            passed = obj.__dict__.setdefault("_validated", {})
+            tokens = {key: _token(getattr(obj, key))
+                      for key in ("vertex_positions", "vertex_normals", "vertex_materials")}
+            used = getattr(obj, "_referenced", None)
+            if used is None or used[0] is not obj.faces:   # faces never change in place
+                used = obj._referenced = (obj.faces, np.unique(obj.faces))
+            tokens["vertex_normals"] += (used[0],)          # the zero-normal check reads faces
+            todo = [key for key, tok in tokens.items() if not _same(passed.get(key), tok)]
+            if not todo:
+                continue
+            arrays = {key: np.asarray(tokens[key][0]) for key in todo}
+            for key in todo:
+                a = arrays[key]
                 if not np.isfinite(a).all():
                     bad = np.flatnonzero(~np.isfinite(a).all(axis=-1))[:5].tolist()
                     raise InputValueError(f"object {name!r}: {key} holds NaN/Inf (vertices {bad})")
-            used = getattr(obj, "_referenced", None)
-            if used is None:                   # faces never change: cache the vertex set
-                used = obj._referenced = np.unique(obj.faces)
-            n = np.asarray(dr.detach(obj.vertex_normals))[used]
-            if (np.linalg.norm(n, axis=1) < 1e-12).any():
-                raise InputValueError(f"object {name!r}: zero-length vertex normals")
-            m = np.asarray(dr.detach(obj.vertex_materials))
-            checks = ((m[:, 0] < 1.0, "eps_real < 1"), (m[:, 1] < 0.0, "eps_imag < 0"),
-                      (m[:, 2] < 0.0, "sigma_h < 0"), (m[:, 3] <= 0.0, "l_c <= 0"),
-                      ((m[:, 4] < 0.0) | (m[:, 4] > 1.0), "tau outside [0, 1]"),
-                      (m[:, 5] < 0.0, "thickness d < 0"))
-            for mask, what in checks:
-                if mask.any():
-                    raise InputValueError(f"object {name!r}: vertex materials out of physical "
-                                          f"bounds ({what}) at vertices "
-                                          f"{np.flatnonzero(mask)[:5].tolist()}")
+            if "vertex_normals" in arrays:
+                n = arrays["vertex_normals"][used[1]]
+                if (np.linalg.norm(n, axis=1) < 1e-12).any():
+                    raise InputValueError(f"object {name!r}: zero-length vertex normals")
+            if "vertex_materials" in arrays:
+                m = arrays["vertex_materials"]
+                checks = ((m[:, 0] < 1.0, "eps_real < 1"), (m[:, 1] < 0.0, "eps_imag < 0"),
+                          (m[:, 2] < 0.0, "sigma_h < 0"), (m[:, 3] <= 0.0, "l_c <= 0"),
+                          ((m[:, 4] < 0.0) | (m[:, 4] > 1.0), "tau outside [0, 1]"),
+                          (m[:, 5] < 0.0, "thickness d < 0"))
+                for mask, what in checks:
+                    if mask.any():
+                        raise InputValueError(f"object {name!r}: vertex materials out of physical "
+                                              f"bounds ({what}) at vertices "
+                                              f"{np.flatnonzero(mask)[:5].tolist()}")
+            for key in todo:
+                passed[key] = tokens[key]
 
     # ------------------------------------------------------------------ tracing
     def trace(self, origin, direction, active=True):
@@ -171,6 +183,8 @@ class SceneGeometry:
         ``origin`` ``mi.Point3f`` [m], ``direction`` ``mi.Vector3f`` (unit).
         With :attr:`replay` set, returns the next recorded result instead of
         tracing (frozen samples: the discrete path decisions of an earlier call).
+        The outputs are evaluated here (one kernel), so a recorded result never
+        re-runs the tracing against a scene whose geometry changed since.
         """
         if self.replay is not None:
             if not self.replay:
@@ -191,9 +205,12 @@ class SceneGeometry:
             obj = dr.gather(mi.UInt32, self._shape_table, sid, valid)
             valid &= obj != 0xFFFFFFFF
             face = dr.gather(mi.UInt32, self._face_offset, obj, valid) + pi.prim_index
-            u = dr.select(valid, pi.prim_uv.x, 0.0)
-            v = dr.select(valid, pi.prim_uv.y, 0.0)
-            return valid, obj, face, mi.Float(u), mi.Float(v)
+            u = mi.Float(dr.select(valid, pi.prim_uv.x, 0.0))
+            v = mi.Float(dr.select(valid, pi.prim_uv.y, 0.0))
+            # one kernel for all five outputs: evaluated one by one (compress,
+            # gathers), each would re-run the ray tracing and everything upstream
+            dr.eval(valid, obj, face, u, v)
+            return valid, obj, face, u, v
 
     def visible(self, a, b, active=True):
         """``mi.Bool``: segment ``a -> b`` unobstructed (1 mm margins), no AD."""
@@ -204,7 +221,9 @@ class SceneGeometry:
             ray = mi.Ray3f(a, d / dr.maximum(dist, 1e-12))
             ray.maxt = dr.maximum(dist - 2e-3, 0.0)
             ray.o = ray.o + ray.d * 1e-3
-            return ~self.scene.mi_scene.ray_test(ray, active=mi.Bool(active))
+            out = ~self.scene.mi_scene.ray_test(ray, active=mi.Bool(active))
+            dr.schedule(out)      # evaluated with the next trace (one kernel)
+            return out
 
     # --------------------------------------------------------------- AD rebuild
     def _vertex(self, arr, width, idx, k, active):
@@ -231,3 +250,52 @@ class SceneGeometry:
         ratio = area / dr.maximum(area0, 1e-20)
         return Interaction(valid=valid, obj=obj, face=face, p=p, n=n, ng=ng,
                            area_ratio=ratio, mat=mat, tri=tuple(P))
+
+
+def _token(t):
+    """``(detached tensor, JIT variable index, shape)`` of a scene tensor.
+
+    Holding the detached tensor keeps its variable alive, so an equal index
+    later means the same (unchanged) variable.  Dr.Jit never updates a
+    variable that has other references in place (``t[...] = x`` and
+    ``dr.scatter`` give the tensor a new variable).
+    """
+    d = dr.detach(t)
+    return d, d.array.index, tuple(d.shape)
+
+
+def _same(old, new) -> bool:
+    return (old is not None and len(old) == len(new) and old[1] == new[1] and old[2] == new[2]
+            and all(a is b for a, b in zip(old[3:], new[3:])))
+
+
+def _static_tables(scene, names, objs):
+    """Face and shape tables of ``scene`` that do not depend on the tensors.
+
+    ``(face_offset [numpy], faces [mi.UInt32, 3 F], F, shape table, face offsets
+    [mi.UInt32])``, built once and kept on the scene while the objects, their
+    face arrays (never changed in place), vertex counts and Mitsuba meshes
+    stay the same.
+    """
+    meshes = [scene.mesh(n) for n in names]
+    key = (list(names), [o.faces for o in objs], [int(o.vertex_positions.shape[0]) for o in objs],
+           meshes)
+    cached = getattr(scene, "_mmir_geometry_tables", None)
+    if cached is not None:
+        k = cached[0]
+        if (k[0] == key[0] and k[2] == key[2] and all(a is b for a, b in zip(k[1], key[1]))
+                and all(a is b for a, b in zip(k[3], key[3]))):
+            return cached[1]
+    v_off = np.cumsum([0] + key[2])
+    f_off = np.cumsum([0] + [len(o.faces) for o in objs])
+    faces = np.concatenate([o.faces + v_off[i] for i, o in enumerate(objs)]).astype(np.uint32)
+    # Mitsuba shape registry id -> object index
+    ids = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(m))[0]) for m in meshes]
+    table = np.full(max(ids) + 1, 0xFFFFFFFF, dtype=np.uint32)
+    for i, sid in enumerate(ids):
+        table[sid] = i
+    tables = (f_off, mi.UInt32(faces.ravel()), len(faces), mi.UInt32(table),
+              mi.UInt32(f_off[:-1].astype(np.uint32)))
+    dr.eval(tables[1], tables[3], tables[4])
+    scene._mmir_geometry_tables = (key, tables)
+    return tables

@@ -324,7 +324,7 @@ class RadarPathSolver(PathSolver):
             k_t = to_c / d_c
             cos_t = dr.dot(n, k_t)
             ok = it.valid & (cos_t > 0) & (dr.dot(ng, k_t) > 0) & (cos_in > 0)
-            ok &= tape.freeze(geo.visible(x + ng * RAY_EPSILON, c_w, ok))
+            ok &= tape.freeze_call(geo.visible, x + ng * RAY_EPSILON, c_w, ok)
             cos_t = dr.maximum(cos_t, 0.0)
             e_t = transverse(pose.to_scene(ptx.polarization(pose.to_radar(-k_t))), k_t)
             C_re = dr.zeros(mi.Float, K)
@@ -619,6 +619,10 @@ class RadarPathSolver(PathSolver):
         # keep only lanes that contribute (connected to the Tx): dead rays, failed
         # shadow rays and empty reciprocal twins are dropped before the per-element
         # legs are formed (the masks are detached and frozen, so replay is identical)
+        # evaluate every per-depth term in one pass: compress and gather would
+        # otherwise evaluate each field (and the shared upstream work) in a
+        # kernel of its own (values and the AD graph are unchanged)
+        dr.eval(*(f for o in outs for f in o[:7]), *(o[8] for o in outs))
         kept = []
         for o in outs:
             idx = dr.compress(dr.detach(o[8]))
