@@ -6,7 +6,8 @@ import pytest
 
 from sionna_mmir.fmcw.synthesize import synthesize_adc
 from sionna_mmir.radar.config import RadarConfig
-from sionna_mmir.residual.evidence import near_range_evidence, peak_evidence, track_evidence
+from sionna_mmir.residual.evidence import (near_range_evidence, near_range_similarity,
+                                           peak_evidence, track_evidence)
 
 C = 299_792_458.0
 
@@ -77,3 +78,18 @@ def test_03_track_evidence_follows_a_linear_mover():
     assert ev["median_abs_diff_m"] < radar.range_resolution / 4
     ev_bad = track_evidence(ranges + 0.5, frames, radar)
     assert ev_bad["median_abs_diff_m"] > 0.4
+
+
+def test_04_near_range_similarity_of_two_captures():
+    radar = RadarConfig.awr1843(num_chirps=1, num_samples=128)
+    T, R = radar.num_tx, radar.num_rx
+    rng = np.random.default_rng(3)
+    pat = rng.normal(size=(T, R)) + 1j * rng.normal(size=(T, R))
+    a = _tone_channels(radar, 0.15, np.angle(pat), np.abs(pat))[None, :, :, None]
+    same = near_range_similarity(a, 3j * a, radar)
+    assert same["coherence"] == pytest.approx(1.0, abs=1e-9)
+    assert same["db_correlation"] == pytest.approx(1.0, abs=1e-9)
+    other = rng.normal(size=(T, R)) + 1j * rng.normal(size=(T, R))
+    b = _tone_channels(radar, 0.15, np.angle(other), np.abs(other))[None, :, :, None]
+    ref = abs(np.vdot(pat, other)) / (np.linalg.norm(pat) * np.linalg.norm(other))
+    assert near_range_similarity(a, b, radar)["coherence"] == pytest.approx(ref, abs=0.02)

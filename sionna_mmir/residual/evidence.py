@@ -151,6 +151,31 @@ def near_range_evidence(residual_adc, radar, coloradar_dir=None,
     return out
 
 
+def near_range_similarity(adc_a, adc_b, radar, max_range_m: float = 0.5) -> dict:
+    """Near-range per-channel pattern of two captures of the same unit, ``[F, T, R, C, N]``
+    each: is the leakage a stable property of the board?
+
+    At the strongest near bin (Hann window, mean over frames and chirps):
+    ``db_correlation`` of the per-channel magnitudes [dB], ``coherence``
+    ``|<a, b>| / (|a| |b|)`` of the complex patterns, and ``explained``, the
+    share of ``b``'s pattern energy one complex gain on ``a`` explains.
+    """
+    pats = []
+    for adc in (adc_a, adc_b):
+        x = np.asarray(adc)
+        n = x.shape[-1]
+        spec = np.fft.fft(x * np.hanning(n), axis=-1).mean(axis=(0, 3))     # [T, R, N]
+        bin_m = SPEED_OF_LIGHT * radar.sample_rate / (2 * abs(radar.slope) * n)
+        near = np.arange(n) * bin_m < max_range_m
+        e = np.sum(np.abs(spec) ** 2, axis=(0, 1))
+        pats.append(spec[..., int(np.argmax(np.where(near, e, -1.0)))])
+    a, b = pats
+    coh = abs(np.vdot(a, b)) / (np.linalg.norm(a) * np.linalg.norm(b))
+    db = [20 * np.log10(np.abs(p) + 1e-30).ravel() for p in pats]
+    return {"db_correlation": round(float(np.corrcoef(*db)[0, 1]), 3),
+            "coherence": round(float(coh), 3), "explained": round(float(coh ** 2), 3)}
+
+
 def track_evidence(fitted_range_m, frames, radar, min_range: float = 0.3) -> dict:
     """Fitted per-frame ranges ``[F]`` [m] vs the per-frame peak of the static-removed
     range profile (Hann window, 4x zero padding, summed over channels)."""
