@@ -22,7 +22,7 @@ import dataclasses
 import functools
 
 import numpy as np
-from scipy.optimize import minimize
+from scipy.optimize import minimize, minimize_scalar
 
 from ..errors import InputValueError
 from . import ops
@@ -102,12 +102,13 @@ class EffectModel:
         never initialises from its held-out data.
         """
         model, _ = self.mean_variance_numpy()
+        full = model
         residual = self.y - model
         keep = None if cells is None else np.asarray(cells, bool)[..., None]
         if keep is not None:
             model, residual = model * keep, residual * keep
         if effect.stage == 0:
-            h = self.channel_response(keep)
+            h = self.channel_response(keep, current=full)
             model, residual = model / h, residual / h
         specs = effect.param_specs(self.ctx, model, residual)
         comp = Component(effect=effect, specs=specs,
@@ -115,7 +116,7 @@ class EffectModel:
         self.components.append(comp)
         return comp
 
-    def channel_response(self, keep=None) -> np.ndarray:
+    def channel_response(self, keep=None, current=None) -> np.ndarray:
         """Per-channel complex response of the current sensor chain, ``[1, T, R, 1, 1]``.
 
         ``h[t, r] = sum conj(p) m / sum |p|^2`` over frames, chirps and samples
@@ -126,7 +127,8 @@ class EffectModel:
         per-channel gains and delays adopted earlier would otherwise scramble
         the phases its angle search relies on.  All ones without a base or
         without sensor-stage mean effects, and where ``|h|`` is under a tenth
-        of its median (a channel the base does not reach).
+        of its median (a channel the base does not reach).  ``current``: the
+        mean model when the caller already has it (normalised units).
         """
         T, R = self.ctx.shape[1:3]
         ones = np.ones((1, T, R, 1, 1), complex)
@@ -135,7 +137,7 @@ class EffectModel:
             return ones
         gain = self.nuisance.values["gain"]
         pre = self.b * complex(gain[0], gain[1])
-        post, _ = self.mean_variance_numpy()
+        post = self.mean_variance_numpy()[0] if current is None else current
         if keep is not None:
             pre, post = pre * keep, post * keep
         num = np.sum(np.conj(pre) * post, axis=(0, 3, 4), keepdims=True)
@@ -243,8 +245,6 @@ class EffectModel:
         a candidate predicts there.  Without variance effects it is
         ``log(mean |Y - X|^2) + 1``.
         """
-        from scipy.optimize import minimize_scalar
-
         x, v = self.mean_variance_numpy()
         cells = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
         if cells.shape != self.ctx.shape[:4] or not cells.any():
