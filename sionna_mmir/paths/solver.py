@@ -175,7 +175,16 @@ class RadarPathSolver(PathSolver):
                          triangle in the cone, weighted by its solid angle
                          (a deterministic quadrature; with
                          ``triangle_average`` the exact per-facet physical
-                         optics of PO codes); ``num_rays`` is then unused
+                         optics of PO codes); ``num_rays`` is then unused.
+                         A facet too large for a linear phase across it
+                         (``k D^2 / R >= facet_fresnel``, ``D`` its longest
+                         edge, ``R`` its range) is split into ``n^2``
+                         congruent sub-facets, each one ray and one exact
+                         triangle average, so the quadrature converges in
+                         the near field of large flat surfaces
+    facet_fresnel        bound on the quadratic phase ``k D^2 / R`` [rad] of a
+                         (sub-)facet in ``"facets"`` sampling (default 0.5)
+    max_facet_split      most splits ``n`` per facet edge (default 64)
     triangle_average     integrate the physical-optics phase exactly over
                          each hit triangle (:mod:`.triangle_po`; variance
                          reduction, default on)
@@ -210,7 +219,8 @@ class RadarPathSolver(PathSolver):
                  rr_depth: int = 2, velocities: dict | None = None, radar_velocity=None,
                  check_inside: bool = True, samples=None, reciprocal: bool = True,
                  diffraction: bool = False, fsd_width: float | None = None,
-                 triangle_average: bool = True, sampling: str = "random") -> RadarPaths:
+                 triangle_average: bool = True, sampling: str = "random",
+                 facet_fresnel: float = 0.5, max_facet_split: int = 64) -> RadarPaths:
         radar = _radar_of(scene, radar)
         self._check_args(scene, num_rays, max_depth, seed, cone_angle_deg, velocities)
         geo = SceneGeometry(scene)
@@ -236,7 +246,13 @@ class RadarPathSolver(PathSolver):
 
         # -------- candidate rays (shared seed; no AD)
         if sampling == "facets":
-            origin, d_scene, pdf, target = self._facet_rays(geo, pose, dr.detach(c_w), cone_angle_deg)
+            if not (np.isfinite(facet_fresnel) and facet_fresnel > 0) or int(max_facet_split) < 1:
+                raise ConfigError(f"facet_fresnel must be > 0 and max_facet_split >= 1, got "
+                                  f"{facet_fresnel!r}, {max_facet_split!r}")
+            k_w = 2.0 * math.pi / wavelength
+            origin, d_scene, pdf, target, sub_uv = self._facet_rays(
+                geo, pose, dr.detach(c_w), cone_angle_deg, k_w, float(facet_fresnel),
+                int(max_facet_split))
             N = dr.width(pdf)
             if N == 0:
                 return self._empty(T, R, 0)
@@ -267,6 +283,12 @@ class RadarPathSolver(PathSolver):
 
         # -------- path state (width K)
         it = geo.interaction(valid, obj, face, u, v, tape)
+        if sampling == "facets":
+            # the first interaction integrates over its sub-facet, not the whole facet
+            uv = [dr.gather(mi.Float, c, keep) for c in sub_uv]
+            P0, P1, P2 = it.tri
+            e1, e2 = P1 - P0, P2 - P0
+            it.tri = tuple(P0 + e1 * uv[2 * c] + e2 * uv[2 * c + 1] for c in range(3))
         x1 = it.p
         cw_k = dr.zeros(mi.Point3f, K) + c_w
         k0 = dr.normalize(x1 - cw_k)
@@ -459,12 +481,21 @@ class RadarPathSolver(PathSolver):
 
     # ---------------------------------------------------------------- facets
     @staticmethod
-    def _facet_rays(geo, pose, centre, cone_angle_deg):
-        """Rays from the array centre to every facet centroid inside the cone.
+    def _facet_rays(geo, pose, centre, cone_angle_deg, k_wave, fresnel, max_split):
+        """Rays from the array centre to every (sub-)facet centroid inside the cone.
 
-        Returns ``(origin, direction, pdf, face)`` with ``pdf = 1 / Omega_t``,
-        ``Omega_t = A_t |cos| / d^2`` the facet's solid angle, so that the
-        estimator's area density is ``1 / A_t`` (a quadrature weight).
+        A facet whose quadratic phase ``k D^2 / R`` (``D`` longest edge, ``R``
+        range of its nearest vertex) reaches ``fresnel`` is split into ``n^2``
+        congruent sub-triangles, ``n = ceil(sqrt(k D^2 / (R fresnel)))``
+        (at most ``max_split``): the ``n (n + 1) / 2`` upright and
+        ``n (n - 1) / 2`` inverted cells of the barycentric grid of step
+        ``1 / n``.
+
+        Returns ``(origin, direction, pdf, face, sub_uv)`` with ``pdf = 1 /
+        Omega_s``, ``Omega_s = (A_t / n^2) |cos| / d^2`` the sub-facet's solid
+        angle (so the estimator's area density is ``1 / A_s``: a quadrature
+        weight) and ``sub_uv`` six ``mi.Float`` (``u, v`` of the sub-facet's
+        three corners in the facet's barycentric coordinates).
         """
         V = np.asarray(dr.detach(geo.positions), dtype=np.float64).reshape(-1, 3)
         F = np.asarray(geo.faces, dtype=np.int64).reshape(-1, 3)
@@ -482,13 +513,36 @@ class RadarPathSolver(PathSolver):
         cos_b = d @ bore
         cos_n = np.abs(np.sum(d * nrm, axis=1))
         ok = (cos_b >= np.cos(np.radians(cone_angle_deg)) - 1e-9) & (cos_n > 1e-4) & (dist > 1e-3)
-        idx = np.flatnonzero(ok).astype(np.uint32)
-        omega = area[idx] * cos_n[idx] / dist[idx] ** 2
-        n = len(idx)
-        dd = d[idx].astype(np.float32)
+        idx = np.flatnonzero(ok)
+        # splits per facet from its quadratic phase at its nearest vertex
+        D2 = np.max(np.stack([np.sum((p1 - p0) ** 2, 1), np.sum((p2 - p0) ** 2, 1),
+                              np.sum((p2 - p1) ** 2, 1)]), axis=0)[idx]
+        near = np.min(np.stack([np.linalg.norm(p - c, axis=1)[idx] for p in (p0, p1, p2)]), axis=0)
+        n_split = np.clip(np.ceil(np.sqrt(k_wave * D2 / (np.maximum(near, 1e-3) * fresnel))),
+                          1, max_split).astype(np.int64)
+        fac, uvs = [], []
+        for n in np.unique(n_split):
+            sel = idx[n_split == n]
+            cells = _subfacet_cells(int(n))                  # [n^2, 3, 2] corner (u, v)
+            fac.append(np.repeat(sel, len(cells)))
+            uvs.append(np.tile(cells, (len(sel), 1, 1)))
+        fac = np.concatenate(fac) if fac else np.zeros(0, np.int64)
+        uvs = np.concatenate(uvs) if uvs else np.zeros((0, 3, 2))
+        cu, cv = uvs[:, :, 0].mean(1), uvs[:, :, 1].mean(1)
+        q = p0[fac] + cu[:, None] * (p1 - p0)[fac] + cv[:, None] * (p2 - p0)[fac]
+        dq = q - c
+        dq_n = np.linalg.norm(dq, axis=1)
+        dq /= np.maximum(dq_n, 1e-12)[:, None]
+        ns = np.repeat(n_split, [int(k) ** 2 for k in n_split]) if len(fac) else np.zeros(0)
+        cos_q = np.maximum(np.abs(np.sum(dq * nrm[fac], axis=1)), 1e-6)
+        omega = area[fac] / ns ** 2 * cos_q / np.maximum(dq_n, 1e-3) ** 2
+        n = len(fac)
+        dd = dq.astype(np.float32)
         origin = dr.zeros(mi.Point3f, n) + mi.Point3f(*(float(v) for v in c))
         direction = mi.Vector3f(mi.Float(dd[:, 0]), mi.Float(dd[:, 1]), mi.Float(dd[:, 2]))
-        return origin, direction, mi.Float((1.0 / omega).astype(np.float32)), mi.UInt32(idx)
+        sub_uv = [mi.Float(uvs[:, k, j].astype(np.float32)) for k in range(3) for j in range(2)]
+        return (origin, direction, mi.Float((1.0 / omega).astype(np.float32)),
+                mi.UInt32(fac.astype(np.uint32)), sub_uv)
 
     # ------------------------------------------------------------- diffraction
     @staticmethod
@@ -663,3 +717,15 @@ class RadarPathSolver(PathSolver):
                               shape=(T, R, P))
         depth = np.concatenate([np.full(o[8], o[7], dtype=np.int32) for o in outs])
         return RadarPaths.from_factors(factors, depth=depth, num_candidates=N, info={"hits": K})
+
+
+def _subfacet_cells(n: int) -> np.ndarray:
+    """Corners ``[n^2, 3, 2]`` (barycentric ``u, v``) of the ``n^2`` congruent
+    sub-triangles of a triangle split ``n`` times per edge (same winding)."""
+    out = []
+    for i in range(n):
+        for j in range(n - i):
+            out.append([(i, j), (i + 1, j), (i, j + 1)])
+            if i + j < n - 1:
+                out.append([(i + 1, j), (i + 1, j + 1), (i, j + 1)])
+    return np.asarray(out, dtype=np.float64) / n
