@@ -6,7 +6,8 @@
   corner scene (``comparisons/residual_base.py`` writes it; run here when
   missing).  Evidence: TI's ``PeakValMat`` / ``RangeMat`` (per-channel peak
   phase, amplitude, position) and ColoRadar's measured ``coupling_calib.txt``.
-* AWR1843 moving target (first ``--mover-frames`` of 500, default 50 = 1 s,
+* AWR1843 moving target (first ``--mover-frames`` of the 1000 chirp sets the
+  default ``pairs`` DCA1000 layout reads, 10 ms apart; default 100 = 1 s,
   ``--mover-rounds`` 3):
   base model = the static background (mean over those frames).  Evidence: the model-free per-frame peak track.
 
@@ -77,13 +78,13 @@ def corner(name, measured, base_dir, out):
     return d, ev
 
 
-def mover(measured, out, frames=50, max_rounds=3):
+def mover(measured, out, frames=100, max_rounds=3):
     from sionna_mmir.captures.loader import load_capture
     from sionna_mmir.residual.evidence import track_evidence
     from sionna_mmir.residual.report import write_report
 
     cap = load_capture(measured / "awr1843_dca1000" / MOVER)
-    y = cap.frames[:frames].astype(np.complex128)          # the first `frames` (1 s at 50)
+    y = cap.frames[:frames].astype(np.complex128)          # the first `frames` (1 s at 100)
     base = np.broadcast_to(y.mean(axis=0, keepdims=True), y.shape).copy()
     d = _diagnose(y, base, cap.radar, float(cap.metadata.get("frame_period") or 0.02),
                   max_rounds=max_rounds)
@@ -112,9 +113,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=os.path.join(HERE, "residual"))
     p.add_argument("--only", default=None,
                    help="corner_4m7, corner_6m1, mover or evidence (cross-capture checks only)")
-    p.add_argument("--mover-frames", type=int, default=50,
-                   help="frames of the AWR1843 mover used (one round over 100 frames takes "
-                        "about 13 min on 2 cores; all 500 would take hours)")
+    p.add_argument("--mover-frames", type=int, default=100,
+                   help="frames of the AWR1843 mover used (10 ms apart; 3 rounds over 100 "
+                        "frames take about 8 min on 2 cores; all 1000 would take hours)")
     p.add_argument("--mover-rounds", type=int, default=3, help="adoption rounds on the mover")
     args = p.parse_args(argv)
     measured = find_measured_dir()
