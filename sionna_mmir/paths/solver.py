@@ -181,7 +181,12 @@ class RadarPathSolver(PathSolver):
                          edge, ``R`` its range) is split into ``n^2``
                          congruent sub-facets, each one ray and one exact
                          triangle average, so the quadrature converges in
-                         the near field of large flat surfaces
+                         the near field of large flat surfaces. Coherent
+                         chains then continue deterministically (no
+                         specular / scatter choice, no roulette); scattered
+                         energy reaches the Tx by next-event estimation at
+                         each interaction (scatter-then-scatter chains are
+                         left out)
     facet_fresnel        bound on the quadratic phase ``k D^2 / R`` [rad] of a
                          (sub-)facet in ``"facets"`` sampling (default 0.5)
     max_facet_split      most splits ``n`` per facet edge (default 64)
@@ -308,6 +313,12 @@ class RadarPathSolver(PathSolver):
                                                    if radar_velocity is not None else np.zeros(3))))
         first_pdf = pdf
         fsd_state = self._fsd_setup(geo, wavelength, fsd_width) if diffraction else None
+        # coherent chains are integrated over the first surface (image theory): the
+        # Tx leg of a mirror chain x1 -> x2 .. xl -> Tx is |M(x1) - Tx| with M the
+        # chain's mirrors (M_l o .. o M_2), x_img = M(x1), Lm = linear part of M
+        tri1 = it.tri
+        x_img = x1
+        Lm = [mi.Vector3f(1.0, 0.0, 0.0), mi.Vector3f(0.0, 1.0, 0.0), mi.Vector3f(0.0, 0.0, 1.0)]
 
         outs = []
         for depth in range(1, int(max_depth) + 1):
@@ -348,6 +359,10 @@ class RadarPathSolver(PathSolver):
             ok = it.valid & (cos_t > 0) & (dr.dot(ng, k_t) > 0) & (cos_in > 0)
             ok &= tape.freeze_call(geo.visible, x + ng * RAY_EPSILON, c_w, ok)
             cos_t = dr.maximum(cos_t, 0.0)
+            if depth > 1:
+                # unfold the chain: image of x1 in this interaction's plane
+                x_img = x_img - n * (2.0 * dr.dot(x_img - x, n))
+                Lm = [c - n * (2.0 * dr.dot(c, n)) for c in Lm]
             e_t = transverse(pose.to_scene(ptx.polarization(pose.to_radar(-k_t))), k_t)
             C_re = dr.zeros(mi.Float, K)
             C_im = dr.zeros(mi.Float, K)
@@ -359,19 +374,32 @@ class RadarPathSolver(PathSolver):
                          / (4.0 * math.pi * dr.maximum(p_area, 1e-30) * n_est))
                 m = ok & coh
                 wr, wi = -pi_ * scale, pr * scale            # j * (pr + j pi)
+                # Tx-side distance of the unfolded chain and the phase gradient
+                # on the first surface: grad_y (|y - c| + |M(y) - c|) at x1
+                to_img = x_img - cw_k
+                d_img = dr.norm(to_img)
                 if triangle_average:
-                    fr, fi = triangle_phase_average(k_wave * (k_in - k_t), *it.tri, x)
+                    u_img = to_img / dr.maximum(d_img, 1e-9)
+                    g_img = mi.Vector3f(*(dr.dot(c, u_img) for c in Lm))     # Lm^T u
+                    fr, fi = triangle_phase_average(k_wave * (k0 + g_img), *tri1, x1)
                     # only where the phase is linear across the triangle: the
                     # quadratic (Fresnel) term k D^2 / R must stay below ~1 rad
-                    P0, P1, P2 = (dr.detach(v) for v in it.tri)
+                    P0, P1, P2 = (dr.detach(v) for v in tri1)
                     D2 = dr.maximum(dr.maximum(dr.squared_norm(P1 - P0), dr.squared_norm(P2 - P0)),
                                     dr.squared_norm(P2 - P1))
-                    near = dr.minimum(dr.detach(d_c), dr.detach(L0_det + chain))
+                    near = dr.minimum(dr.detach(d_img), L0_det)
                     lin = tape.freeze(k_wave * D2 / dr.maximum(near, 1e-3) < 1.0)
                     fr, fi = dr.select(lin, fr, 1.0), dr.select(lin, fi, 0.0)
                     wr, wi = wr * fr - wi * fi, wr * fi + wi * fr
-                C_re += dr.select(m, wr, 0.0)
-                C_im += dr.select(m, wi, 0.0)
+                if depth == 1:
+                    C_re += dr.select(m, wr, 0.0)
+                    C_im += dr.select(m, wi, 0.0)
+                else:
+                    # a separate path: Tx leg from the unfolded image of x1, no chain
+                    zero = dr.zeros(mi.Float, K)
+                    rate_c = self._rate(rate_chain, vel, it.obj, k_in, k_t, v_radar, k0)
+                    outs.append((dr.select(m, wr, 0.0), dr.select(m, wi, 0.0), x_img, x1, zero,
+                                 zero, rate_c, depth, m))
             if scattering:
                 fs, fp = polarization_fractions(E, k_in, n)
                 sc_t = slab_coefficients(cos_t, eps, thick, frequency, backend="drjit")
@@ -391,7 +419,8 @@ class RadarPathSolver(PathSolver):
                 C_im += sc_im
             rate = self._rate(rate_chain, vel, it.obj, k_in, k_t, v_radar, k0)
             zero = dr.zeros(mi.Float, K)
-            outs.append((C_re, C_im, x, x1, zero, chain, rate, depth, ok))
+            if depth == 1 or scattering:      # (deeper coherent terms were added above)
+                outs.append((C_re, C_im, x, x1, zero, chain, rate, depth, ok))
             if scattering and reciprocal and depth > 1:
                 # the reversed path (scatter at x first, then the specular chain to
                 # the Tx) is not sampled from the Rx side: add it by reciprocity
@@ -404,6 +433,14 @@ class RadarPathSolver(PathSolver):
             # ---- continuation: mirror (coherent) or BSDF sample (incoherent)
             eta_in = dr.exp(-dr.square(2.0 * k_wave * sigma_h * cos_in))
             p_spec = tape.freeze(eta_in) if scattering else dr.ones(mi.Float, K)
+            if sampling == "facets":
+                # deterministic quadrature: coherent chains always continue (their
+                # field carries sqrt(eta)); a random specular/scatter choice would
+                # thin the first-surface integral at random (variance ~ the sum of
+                # |terms|^2, which dwarfs the stationary-phase sum). The scattered
+                # energy still reaches the Tx by next-event estimation at every
+                # interaction; scatter-then-scatter chains are left out.
+                p_spec = dr.ones(mi.Float, K)
             if not coherent:
                 p_spec = dr.zeros(mi.Float, K)
             u_ev = rng.next_float32()
@@ -449,6 +486,8 @@ class RadarPathSolver(PathSolver):
                 alive |= diff
             if depth + 1 > rr_depth:
                 q = tape.freeze(dr.clip(dr.select(coh, pol_pow, 0.5), 0.1, 1.0))
+                if sampling == "facets":
+                    q = dr.select(coh, 1.0, q)     # no roulette on the quadrature's chains
                 survive = rng.next_float32() < q
                 alive &= survive
                 inv_p = dr.select(coh, inv_p / q, inv_p)
