@@ -5,8 +5,9 @@ loss, backward pass -- for mmIR (gradients to every per-vertex material,
 normal and beam parameter) and for the Sionna RT baseline (gradients to its
 per-object material scalars), on the same LiDAR-like benchmark scene, radar
 and ray budget (mmIR ``rays`` from the array centre; Sionna ``rays`` samples
-per source).  Warm-up first, then the median of ``--repeat`` iterations;
-the ratio is the figure to read on a noisy machine.
+per source).  Warm-up first, then ``--repeat`` interleaved rounds (one iteration of
+each side per round); the ratio (median of the per-round ratios) is the
+figure to read on a noisy machine.
 """
 from __future__ import annotations
 
@@ -26,23 +27,33 @@ def add_parser(sub) -> None:
     p.add_argument("--json", default=None, help="write results here")
 
 
-def _time_iteration(model, target, repeat):
+def _one_iteration(model, target, seed):
     import drjit as dr
 
     from ..processing.drjit_ra import ra_loss_from_adc
 
     z = model.latents()
-    times = []
-    for i in range(repeat + 1):
-        t0 = time.perf_counter()
-        adc, handles = model.render(z, seed=100 + i)
-        loss = ra_loss_from_adc(adc, model.radar, target)
-        dr.backward(loss)
-        for h in handles.values():
-            dr.eval(dr.grad(h))
-        if i:                                   # the first one compiles kernels
-            times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+    t0 = time.perf_counter()
+    adc, handles = model.render(z, seed=seed)
+    loss = ra_loss_from_adc(adc, model.radar, target)
+    dr.backward(loss)
+    for h in handles.values():
+        dr.eval(dr.grad(h))
+    return time.perf_counter() - t0
+
+
+def _time_interleaved(models, target, repeat):
+    """Median seconds per iteration of each model and the median per-round ratio.
+
+    One warm-up iteration each (kernel compilation), then ``repeat`` rounds
+    that time one iteration of every model in turn, so load changes on a
+    shared machine hit both sides alike.
+    """
+    for m in models:
+        _one_iteration(m, target, 99)
+    rounds = [[_one_iteration(m, target, 100 + r) for m in models] for r in range(repeat)]
+    t = np.asarray(rounds)
+    return np.median(t, axis=0), float(np.median(t[:, 0] / t[:, 1]))
 
 
 def cmd_bench(args) -> int:
@@ -70,10 +81,10 @@ def cmd_bench(args) -> int:
     sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=args.depth + 1,
                                      samples_per_src=args.rays))
     out = {"scene": args.scene, "triangles": int(sum(len(m.faces) for m in lidar.values())),
-           "rays": args.rays, "radar": radar.name,
-           "mmir_s_per_it": _time_iteration(mm, target, args.repeat),
-           "sionna_s_per_it": _time_iteration(sio, target, args.repeat)}
-    out["ratio_mmir_over_sionna"] = out["mmir_s_per_it"] / out["sionna_s_per_it"]
+           "rays": args.rays, "radar": radar.name, "rounds": args.repeat}
+    med, ratio = _time_interleaved((mm, sio), target, args.repeat)
+    out["mmir_s_per_it"], out["sionna_s_per_it"] = float(med[0]), float(med[1])
+    out["ratio_mmir_over_sionna"] = ratio          # median of the per-round ratios
     print(f"| scene | triangles | rays | mmIR s/it | Sionna RT s/it | ratio |\n|---|---|---|---|---|---|\n"
           f"| {out['scene']} | {out['triangles']} | {out['rays']} | {out['mmir_s_per_it']:.2f} | "
           f"{out['sionna_s_per_it']:.2f} | {out['ratio_mmir_over_sionna']:.2f} |")
