@@ -28,14 +28,16 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 CAPTURES = ("corner_4m7_slope79.mat", "corner_6m1_slope79.mat")
 
 
-def _self_calibrated(cap):
-    """``cap`` with TI's phase / frequency calibration from its own corner applied."""
+def _self_calibrated(cap, corner_range):
+    """``cap`` with TI's phase / frequency calibration from its own corner applied
+    (peak search gated to +/- 0.3 m about ``corner_range``: the corner, not a wall)."""
     from sionna_mmir.captures.capture import Capture
     from sionna_mmir.processing.calibration import (estimate_phase_frequency_calibration,
                                                     phase_frequency_correct)
 
     r = cap.radar
-    bins, peaks = estimate_phase_frequency_calibration(cap.adc, r, min_range=1.0)
+    bins, peaks = estimate_phase_frequency_calibration(cap.adc, r, min_range=corner_range - 0.3,
+                                                       max_range=corner_range + 0.3)
     frames = phase_frequency_correct(cap.frames, r, bins, peaks, r.slope, r.sample_rate,
                                      r.num_samples)
     meta = dict(cap.metadata, calibration="self (own corner, TI procedure)")
@@ -65,12 +67,17 @@ def main(argv=None) -> int:
     for name in CAPTURES:
         cap = load_capture(measured / "mmwcas_corner" / name)
         radar = cap.radar
-        if args.calibration == "self":
-            cap = _self_calibrated(cap)
-        ra, ranges, az = range_azimuth(cap.adc, radar)
-        r, a, _ = strongest_return(ra, ranges, az, 1.0, radar.max_range * 0.9)
         centre = VirtualArray(radar).phase_centre()
-        r, a_deg = refine_point_target(cap.adc, radar, r, np.degrees(a), centre)
+
+        def detect(c):
+            ra, ranges, az = range_azimuth(c.adc, radar)
+            r, a, _ = strongest_return(ra, ranges, az, 1.0, radar.max_range * 0.9)
+            return (ra, ranges, az) + refine_point_target(c.adc, radar, r, np.degrees(a), centre)
+
+        ra, ranges, az, r, a_deg = detect(cap)
+        if args.calibration == "self":
+            cap = _self_calibrated(cap, r)          # gated at the detected corner
+            ra, ranges, az, r, a_deg = detect(cap)
         sides = fit_stage(cap, ra, r, np.radians(a_deg), centre, iterations=args.iterations,
                           progress=False)
         rows += table_rows(name, sides)
