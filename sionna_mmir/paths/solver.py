@@ -263,7 +263,9 @@ class RadarPathSolver(PathSolver):
                 return self._empty(T, R, 0)
         elif sampling == "random":
             N = int(num_rays)
-            sampler = mi.PCG32(size=N, initstate=int(seed))
+            # opaque seeds: a literal would be baked into the kernels and every new
+            # seed (every fit iteration) would recompile them (~1 s per iteration)
+            sampler = mi.PCG32(size=N, initstate=dr.opaque(mi.UInt64, int(seed)))
             u1, u2 = sampler.next_float32(), sampler.next_float32()
             local, pdf = cone_directions(u1, u2, math.radians(cone_angle_deg))
             d_radar = mi.Vector3f(local.z, local.x, local.y)        # +z_local -> boresight +x
@@ -284,7 +286,7 @@ class RadarPathSolver(PathSolver):
         u, v = dr.gather(mi.Float, u, keep), dr.gather(mi.Float, v, keep)
         n_est = 1 if sampling == "facets" else N
         valid = dr.full(mi.Bool, True, K)
-        rng = mi.PCG32(size=K, initstate=int(seed) + 0x9E3779B9)
+        rng = mi.PCG32(size=K, initstate=dr.opaque(mi.UInt64, int(seed) + 0x9E3779B9))
 
         # -------- path state (width K)
         it = geo.interaction(valid, obj, face, u, v, tape)
@@ -692,7 +694,9 @@ class RadarPathSolver(PathSolver):
         the gain is the element's pattern towards ``X`` in the radar frame.
         """
         i = dr.arange(mi.UInt32, n * P)
-        e_idx, p_idx = i // P, i % P
+        Pv = dr.opaque(mi.UInt32, P)          # a literal P would recompile per path count
+        e_idx = i // Pv
+        p_idx = i - e_idx * Pv
         e = _gather3(elements, e_idx)
         xp = _gather3(X, p_idx)
         d = dr.maximum(dr.norm(xp - e), 1e-6)
