@@ -561,20 +561,21 @@ class RadarPathSolver(PathSolver):
         near = np.min(np.stack([np.linalg.norm(p - c, axis=1)[idx] for p in (p0, p1, p2)]), axis=0)
         n_split = np.clip(np.ceil(np.sqrt(k_wave * D2 / (np.maximum(near, 1e-3) * fresnel))),
                           1, max_split).astype(np.int64)
-        fac, uvs = [], []
+        fac, uvs, ns = [], [], []
         for n in np.unique(n_split):
             sel = idx[n_split == n]
             cells = _subfacet_cells(int(n))                  # [n^2, 3, 2] corner (u, v)
             fac.append(np.repeat(sel, len(cells)))
             uvs.append(np.tile(cells, (len(sel), 1, 1)))
+            ns.append(np.full(len(sel) * len(cells), float(n)))
         fac = np.concatenate(fac) if fac else np.zeros(0, np.int64)
         uvs = np.concatenate(uvs) if uvs else np.zeros((0, 3, 2))
+        ns = np.concatenate(ns) if ns else np.zeros(0)
         cu, cv = uvs[:, :, 0].mean(1), uvs[:, :, 1].mean(1)
         q = p0[fac] + cu[:, None] * (p1 - p0)[fac] + cv[:, None] * (p2 - p0)[fac]
         dq = q - c
         dq_n = np.linalg.norm(dq, axis=1)
         dq /= np.maximum(dq_n, 1e-12)[:, None]
-        ns = np.repeat(n_split, [int(k) ** 2 for k in n_split]) if len(fac) else np.zeros(0)
         cos_q = np.maximum(np.abs(np.sum(dq * nrm[fac], axis=1)), 1e-6)
         omega = area[fac] / ns ** 2 * cos_q / np.maximum(dq_n, 1e-3) ** 2
         n = len(fac)
