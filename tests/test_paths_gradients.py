@@ -263,3 +263,27 @@ def test_10_facet_quadrature_gradients(rough_scene):
                          ("vertex_positions", 0, 2e-5)):
         ad, fd = check(h, obj, key, (v, k), step)
         _assert_close(ad, fd, f"{key}[{k}] (facets)")
+
+
+def test_11_facet_image_chain_gradients():
+    """Facet quadrature at depth 2: the coherent wall -> floor chains take their Tx leg
+    from the image of the first hit in the floor, so the floor's normals and vertex
+    heights move the ADC phase through the unfolded chain (AD vs central FD)."""
+    floor = trimesh.Trimesh(np.array([[0.5, -1, -0.4], [3, -1, -0.4], [3, 1, -0.4], [0.5, 1, -0.4]]),
+                            [[0, 2, 1], [0, 3, 2]], process=False).subdivide().subdivide()
+    metal = np.array([1.0, 1e6, 1e-5, 1e-2, 0.9, 0.01], np.float32)
+    sc = _scene({"wall": _plate([1.6, 0.0, 0.0], 0.8, yaw_deg=8.0, subdiv=2), "floor": floor},
+                mats={"wall": MAT, "floor": metal})
+    h = Harness(sc, "adc", max_depth=2, sampling="facets", cone_angle_deg=40.0, scattering=False)
+    p = h.solver(sc, samples=list(h.samples), **h.opts)
+    assert np.any(p.depth == 2)                              # chains exist
+    floor_obj = sc.mesh_objects["floor"]
+    fv = _centre_vertex(floor_obj, [1.75, 0.0, -0.4])
+    # (normal x: the float32 FD scatters +-5 % around AD over steps 1e-3..1e-2; y is clean)
+    for key, k, step in (("vertex_normals", 1, 0.01), ("vertex_positions", 2, 2e-5)):
+        ad, fd = check(h, floor_obj, key, (fv, k), step)
+        _assert_close(ad, fd, f"floor {key}[{k}] (facets, depth 2)")
+    wall = sc.mesh_objects["wall"]
+    v = _centre_vertex(wall, [1.6, 0.0, -0.3])
+    ad, fd = check(h, wall, "vertex_materials", (v, 0), 0.02)
+    _assert_close(ad, fd, "wall eps' (facets, depth 2)")
