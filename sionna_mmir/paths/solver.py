@@ -366,6 +366,7 @@ class RadarPathSolver(PathSolver):
                 x_img = x_img - n * (2.0 * dr.dot(x_img - x, n))
                 Lm = [c - n * (2.0 * dr.dot(c, n)) for c in Lm]
             e_t = transverse(pose.to_scene(ptx.polarization(pose.to_radar(-k_t))), k_t)
+            rate = self._rate(rate_chain, vel, it.obj, k_in, k_t, v_radar, k0)
             C_re = dr.zeros(mi.Float, K)
             C_im = dr.zeros(mi.Float, K)
             if coherent:
@@ -399,9 +400,8 @@ class RadarPathSolver(PathSolver):
                 else:
                     # a separate path: Tx leg from the unfolded image of x1, no chain
                     zero = dr.zeros(mi.Float, K)
-                    rate_c = self._rate(rate_chain, vel, it.obj, k_in, k_t, v_radar, k0)
                     outs.append((dr.select(m, wr, 0.0), dr.select(m, wi, 0.0), x_img, x1, zero,
-                                 zero, rate_c, depth, m))
+                                 zero, rate, depth, m))
             if scattering:
                 fs, fp = polarization_fractions(E, k_in, n)
                 sc_t = slab_coefficients(cos_t, eps, thick, frequency, backend="drjit")
@@ -419,7 +419,6 @@ class RadarPathSolver(PathSolver):
                 sc_re, sc_im = amp * dr.cos(phase), amp * dr.sin(phase)
                 C_re += sc_re
                 C_im += sc_im
-            rate = self._rate(rate_chain, vel, it.obj, k_in, k_t, v_radar, k0)
             zero = dr.zeros(mi.Float, K)
             if depth == 1 or scattering:      # (deeper coherent terms were added above)
                 outs.append((C_re, C_im, x, x1, zero, chain, rate, depth, ok))
