@@ -1,6 +1,7 @@
 """Dr.Jit bridge for :mod:`sionna_mmir.fmcw.synthesize_factorised`.
 
-A ``dr.CustomOp`` runs the factorised NumPy synthesiser on detached values and
+A ``dr.CustomOp`` runs the factorised synthesiser (:data:`SYNTHESIS`: the
+NUFFT one of :mod:`sionna_mmir.fmcw.synthesize_nufft`) on detached values and
 supplies its analytic forward (JVP) and backward (VJP) derivatives, so the
 ADC of factorised paths is one node of the Dr.Jit AD graph and the
 ``[tx, rx, path]`` expansion is never formed, neither in the forward pass nor
@@ -19,7 +20,13 @@ import numpy as np
 
 from ..errors import InputValueError
 from ..radar.config import RadarConfig
-from .synthesize_factorised import FactorisedSynthesis, check_factor_inputs
+from .synthesize_factorised import check_factor_inputs
+from .synthesize_nufft import NufftSynthesis
+
+#: the synthesiser the AD node runs (forward, VJP, JVP); the exact matrix-product
+#: twin :class:`~sionna_mmir.fmcw.synthesize_factorised.FactorisedSynthesis`
+#: has the same interface (benchmarks and tests swap it in)
+SYNTHESIS = NufftSynthesis
 
 _WHERE = "synthesize_adc_factorised"
 _NAMES = ("c_re", "c_im", "g_t", "tau_t", "g_r", "tau_r", "rate")
@@ -69,7 +76,7 @@ def _make_op():
             self.radar, self.shape3, self.moving = radar, shape, moving
             x = _inputs_numpy(radar, shape, c_re, c_im, g_t, tau_t, g_r, tau_r,
                               rate if moving else None)
-            self.synth = FactorisedSynthesis(radar, x)
+            self.synth = SYNTHESIS(radar, x)
             s = self.synth.forward()
             return mi.Float(_f32(s.real)), mi.Float(_f32(s.imag))
 

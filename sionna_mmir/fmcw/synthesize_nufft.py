@@ -1,0 +1,183 @@
+"""ADC synthesis from factorised paths by non-uniform FFTs (the fast path).
+
+Per Tx row ``i = (t, l)`` and Rx element ``r`` the fast-time signal of the
+factorised paths (:mod:`sionna_mmir.fmcw.synthesize_factorised`) is a sum of
+complex exponentials at *non-uniform* frequencies::
+
+    s[i, r, k] = sum_p b[i, r, p] exp(j 2 pi x[i, r, p] k),      k = 0 .. K-1
+    x = S dt tau + f0 rho dt                          [cycles / sample]
+    b = c g_t g_r exp(j 2 pi (f_k0 tau + f0 rho t_0))  (tau = tau_0[i] + tau_r[r])
+
+which is a type-1 NUFFT (Dutt & Rokhlin 1993; here the exponential-of-
+semicircle kernel of FINUFFT, Barnett, Magland & af Klinteberg 2019,
+"A parallel non-uniform fast Fourier transform library based on an
+'exponential of semicircle' kernel", SIAM J. Sci. Comput. 41(5)).  With the
+output modes ``m = k - h`` (``h = K // 2``) centred as FINUFFT expects, the
+strength of path ``p`` is ``b exp(j 2 pi h x)``, which still factors into a
+Tx-row phasor times an Rx phasor, so only ``(T L + R) P`` phasors are formed
+from float64 phases; the ``[T, R, P]`` products are formed one Tx row at a
+time.
+
+Cost per row pair: ``P w`` kernel evaluations (``w ~ 7`` at the default
+tolerance) and one ``2K``-point FFT, against ``K P`` multiply-adds for the
+exact matrix products of :class:`~sionna_mmir.fmcw.synthesize_factorised.FactorisedSynthesis`
+(the reference twin; it is also the JVP here).  The vector-Jacobian product
+is two type-2 NUFFTs per row pair (of ``conj(G)`` and ``k conj(G)``).
+
+Accuracy: relative l2 error ~1e-5 per row against the exact sum (single
+precision NUFFT, ``eps = 1e-5``), below the float32 rounding of the
+renderer's delays (1e-3 rad of carrier phase at 4.5 m).
+"""
+from __future__ import annotations
+
+from .synthesize_factorised import FactorisedSynthesis, _cis, _in_groups
+
+#: requested NUFFT tolerance (relative l2 per transform)
+NUFFT_EPS = 1e-5
+
+
+def _wrap(cycles):
+    """``2 pi (cycles mod 1)`` in ``[-pi, pi)`` as float32 (FINUFFT's point range)."""
+    import numpy as np
+
+    frac = cycles - np.floor(cycles + 0.5)
+    return (2 * np.pi * frac).astype(np.float32)
+
+
+class NufftSynthesis(FactorisedSynthesis):
+    """Forward and VJP of the factorised synthesis by FINUFFT (JVP: exact, inherited).
+
+    Same constructor and outputs as
+    :class:`~sionna_mmir.fmcw.synthesize_factorised.FactorisedSynthesis`
+    (``forward() -> complex64 [T, R, num_chirps, K]``, ``vjp(G) -> dict``);
+    ``eps`` is the NUFFT tolerance.
+    """
+
+    def __init__(self, radar, inputs, eps: float = NUFFT_EPS, **kwargs):
+        super().__init__(radar, inputs, **kwargs)
+        self.eps = float(eps)
+        self.h = self.K // 2
+        self._prepare()
+
+    # ------------------------------------------------------------ set-up
+    def _prepare(self):
+        """Per-row and per-Rx phasors and point offsets (float64 phases)."""
+        import numpy as np
+
+        x, h = self.x, self.h
+        a = self.S * self.dt                                      # cycles/sample per second
+        fh = self.fk0 + h * a                                     # strength frequency [Hz]
+        tau0 = self._tau0(slice(None))                            # [T*L, P]
+        self.row_t = np.repeat(np.arange(self.T), self.L)         # row -> t
+        self.row_l = np.tile(np.arange(self.L), self.T)           # row -> l
+        self.xt = a * tau0                                        # [T*L, P] cycles/sample
+        self.et = _cis(fh * tau0)                                 # [T*L, P] unit phasor
+        self.gt = self._tx_gain(slice(None))                      # [T*L, P] float32
+        xr = a * x.tau_r
+        cr = fh * x.tau_r
+        if self.moving:
+            xr = xr + self.f0 * x.rho[None] * self.dt
+            cr = cr + self.f0 * x.rho[None] * (self.t0 + h * self.dt)
+        self.xr = xr                                              # [R, P]
+        self.er = _cis(cr)                                        # [R, P] unit phasor
+        self.cgr = (x.c[None] * x.g_r).astype(np.complex64)       # [R, P]
+
+    def _plan(self, kind: int, n_trans: int):
+        import finufft
+        import numpy as np
+
+        return finufft.Plan(kind, (self.K,), n_trans=n_trans, eps=self.eps, isign=1,
+                            dtype=np.complex64, nthreads=1, modeord=0)
+
+    def _row_groups(self):
+        return range(self.T * self.L)
+
+    # ------------------------------------------------------------ forward
+    def _points(self, i):
+        """FINUFFT points of Tx row ``i`` and every Rx element: float32 ``[R, P]``."""
+        return _wrap(self.xt[i][None] + self.xr)
+
+    def forward(self):
+        """ADC, complex64 ``[T, R, num_chirps, K]``."""
+        import numpy as np
+
+        out = np.zeros((self.T * self.L, self.R, self.K), np.complex64)
+        B = self.er * self.cgr                                    # [R, P] Rx part of the strength
+
+        def run(rows):
+            plan = self._plan(1, 1)
+            for i in rows:
+                pts = self._points(i)
+                strength = (self.gt[i] * self.et[i])[None] * B    # [R, P]
+                for r in range(self.R):
+                    plan.setpts(pts[r])
+                    out[i, r] = plan.execute(strength[r])
+            return None
+
+        _in_groups(run, self._row_groups(), self.workers)
+        s = out.reshape(self.T, self.L, self.R, self.K).transpose(0, 2, 1, 3)
+        return np.ascontiguousarray(np.broadcast_to(s, self.radar.adc_shape))
+
+    # ------------------------------------------------------------ adjoint
+    def vjp(self, G) -> dict:
+        """Gradients for ``G = dL/d Re(s) + j dL/d Im(s)`` (``[T, R, num_chirps, K]``);
+        the dict of :meth:`FactorisedSynthesis.vjp`.
+
+        Per row pair ``Z0 = sum_k conj(G) E`` and ``Z1 = sum_k k conj(G) E``
+        (``E`` the path's phasor) come from one two-transform type-2 NUFFT; the
+        gradients are ``c: conj(sum g_t g_r Z0)``, ``g_t: Re(c g_r Z0)``,
+        ``g_r: Re(c g_t Z0)``, ``tau: -2 pi Im(c g_t g_r W)`` with
+        ``W = sum_k f_k conj(G) E = f_k0 Z0 + S dt Z1`` and, with motion,
+        ``rho: -2 pi Im(c g_t g_r (T_tl W + f0 (t_0 Z0 + dt Z1)))``.
+        """
+        import numpy as np
+
+        T, R, P, K = self.T, self.R, self.P, self.K
+        Gk = self._upstream(G)                                    # [K, T*L, R] conj(G)
+        Gk = np.ascontiguousarray(Gk.transpose(1, 2, 0))          # [T*L, R, K]
+        kw = np.arange(K, dtype=np.float32)
+        fk0, a = np.float32(self.fk0), np.float32(self.S * self.dt)
+        f0t0, f0dt = np.float32(self.f0 * self.t0), np.float32(self.f0 * self.dt)
+        g_r = self.x.g_r.astype(np.float32)                       # [R, P]
+        cgr = self.cgr                                            # [R, P] c g_r
+        c = self.x.c.astype(np.complex64)[None]                   # [1, P]
+
+        def run(rows):
+            plan = self._plan(2, 2)
+            acc = dict(cg=np.zeros(P, np.complex128), g_t=np.zeros((T, P)),
+                       tau_t=np.zeros((T, P)), g_r=np.zeros((R, P)), tau_r=np.zeros((R, P)),
+                       tau_rate=np.zeros(P) if self.moving else None)
+            F = np.empty((2, K), np.complex64)
+            U = np.empty((R, 2, P), np.complex64)
+            for i in rows:
+                t, gt = self.row_t[i], self.gt[i]
+                pts = self._points(i)
+                for r in range(R):
+                    plan.setpts(pts[r])
+                    F[0] = Gk[i, r]
+                    np.multiply(Gk[i, r], kw, out=F[1])
+                    U[r] = plan.execute(F)
+                ph = self.et[i][None] * self.er                   # [R, P] unit phasors
+                Z0, Z1 = ph * U[:, 0], ph * U[:, 1]
+                cZ0 = (c * Z0).real                               # Re(c Z0)
+                acc["cg"] += gt * np.sum(g_r * Z0, axis=0)
+                acc["g_t"][t] += np.sum(g_r * cZ0, axis=0)
+                acc["g_r"] += gt * cZ0
+                W = fk0 * Z0 + a * Z1
+                dtau = (-2 * np.pi) * gt * np.imag(cgr * W)       # [R, P]
+                acc["tau_t"][t] += np.sum(dtau, axis=0)
+                acc["tau_r"] += dtau
+                if self.moving:
+                    Tl = np.float32(self.Tl[t, self.row_l[i]])
+                    V = Tl * W + f0t0 * Z0 + f0dt * Z1
+                    acc["tau_rate"] += (-2 * np.pi) * gt * np.sum(np.imag(cgr * V), axis=0)
+            return acc
+
+        parts = _in_groups(run, self._row_groups(), self.workers)
+        out = parts[0]
+        for p in parts[1:]:
+            for k, v in p.items():
+                if v is not None:
+                    out[k] += v
+        out["c"] = np.conj(out.pop("cg"))
+        return out
