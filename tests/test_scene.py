@@ -233,3 +233,27 @@ def test_13_normal_attribute_gradient_ad_vs_fd(scene):
         assert abs(ad[v] - fd) <= 0.02 * max(abs(fd), 1e-3), (v, ad[v], fd)
     assert abs(ad.sum() - 1.0) < 1e-4          # barycentric weights of the hit triangle sum to 1
     value(base)
+
+
+def test_14_given_vertex_normals_are_the_shading_normals(tmp_path):
+    """A mesh's own normals (Trimesh ``vertex_normals=`` or a PLY's nx ny nz)
+    are used, normalised; without them trimesh's face-averaged normals
+    (here the plane's +z)."""
+    tilted = np.tile([0.0, 0.6, 0.8], (len(PLANE_V), 1)) * 2.0        # length 2
+    given = trimesh.Trimesh(vertices=PLANE_V, faces=PLANE_F, vertex_normals=tilted, process=False)
+    plain = trimesh.Trimesh(vertices=PLANE_V, faces=PLANE_F, process=False)
+    path = tmp_path / "tilted.ply"
+    given.export(path)
+    for mesh, expected in ((given, [0.0, 0.6, 0.8]), (str(path), [0.0, 0.6, 0.8]),
+                           (plain, [0.0, 0.0, 1.0])):
+        n = np.array(load_scene({"plate": mesh}).mesh_objects["plate"].vertex_normals)
+        assert np.allclose(n, expected, atol=1e-6), (mesh, n)
+
+
+@pytest.mark.parametrize("bad", ["nan", "zero"])
+def test_15_bad_given_normals_raise_naming_the_mesh(bad):
+    n = np.tile([0.0, 0.0, 1.0], (len(PLANE_V), 1))
+    n[1] = np.nan if bad == "nan" else 0.0
+    mesh = trimesh.Trimesh(vertices=PLANE_V, faces=PLANE_F, vertex_normals=n, process=False)
+    with pytest.raises(InputValueError, match="plate.*vertex normals are NaN/Inf or zero"):
+        load_scene({"plate": mesh})

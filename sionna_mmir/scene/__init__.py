@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 
+from .denoise import denoise_mesh, denoise_meshes
 from .mesh_io import DEGENERATE_AREA_M2, TriMeshData, read_mesh, to_mitsuba_mesh
 
 _LAZY = {"RadarScene", "MeshObject", "load_scene", "DEFAULT_FREQUENCY_HZ",

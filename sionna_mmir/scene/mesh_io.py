@@ -62,9 +62,15 @@ def read_mesh(mesh, source: str | None = None,
     returns          :class:`TriMeshData`
     ===============  ====================================================
 
+    Shading normals: the mesh's own vertex normals when it has them (a
+    PLY's ``nx ny nz``, a ``Trimesh`` built with ``vertex_normals=``, e.g. by
+    :func:`~sionna_mmir.scene.denoise.denoise_mesh`), else trimesh's
+    face-averaged normals.
+
     Raises :class:`~sionna_mmir.errors.InputValueError` naming ``source`` for:
-    an unreadable file, no faces, NaN/Inf vertices, face indices out of range
-    and (unless ``drop_degenerate``) degenerate triangles.
+    an unreadable file, no faces, NaN/Inf vertices, NaN/Inf or zero given
+    normals, face indices out of range and (unless ``drop_degenerate``)
+    degenerate triangles.
     """
     import trimesh
 
@@ -74,7 +80,9 @@ def read_mesh(mesh, source: str | None = None,
         if not os.path.isfile(path):
             raise InputValueError(f"{source}: mesh file does not exist")
         try:
-            loaded = trimesh.load(path, process=False, force="mesh")
+            loaded = trimesh.load(path, process=False)
+            if not isinstance(loaded, trimesh.Trimesh):     # a Scene: concatenate
+                loaded = trimesh.load(path, process=False, force="mesh")
         except Exception as exc:  # trimesh raises many types
             raise InputValueError(f"{source}: cannot read mesh ({exc})") from exc
     elif isinstance(mesh, trimesh.Trimesh):
@@ -110,8 +118,28 @@ def read_mesh(mesh, source: str | None = None,
         if faces.size == 0:
             raise InputValueError(f"{source}: mesh is empty after dropping "
                                   f"{degenerate.size} degenerate triangles")
-    return TriMeshData(source=source, vertices=vertices, faces=faces,
-                       normals=_vertex_normals(vertices, faces))
+    normals = _given_normals(loaded, len(vertices), source)
+    if normals is None:
+        normals = _vertex_normals(vertices, faces)
+    return TriMeshData(source=source, vertices=vertices, faces=faces, normals=normals)
+
+
+def _given_normals(loaded, n_vertices: int, source: str):
+    """The mesh's own vertex normals (a PLY's ``nx ny nz``, a ``Trimesh`` built
+    with ``vertex_normals=``), normalised, or None when it has none."""
+    cache = getattr(loaded, "_cache", None)
+    if cache is None or "vertex_normals" not in cache:
+        return None
+    n = np.asarray(loaded.vertex_normals, dtype=np.float64)
+    if n.shape != (n_vertices, 3):
+        raise InputValueError(f"{source}: vertex normals have shape {n.shape}, expected "
+                              f"({n_vertices}, 3)")
+    norm = np.linalg.norm(n, axis=1)
+    bad = np.flatnonzero(~np.isfinite(norm) | (norm < 1e-12))
+    if bad.size:
+        raise InputValueError(f"{source}: {bad.size} vertex normals are NaN/Inf or zero "
+                              f"(first vertices {bad[:5].tolist()})")
+    return n / norm[:, None]
 
 
 def to_mitsuba_mesh(data: TriMeshData, name: str, bsdf=None):

@@ -27,6 +27,8 @@ would), and never overwrites the learnable ``vertex_materials``.
 """
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -195,7 +197,9 @@ def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict 
     for name, src in meshes.items():
         if not isinstance(name, str) or not name or "." in name:
             raise InputValueError(f"load_scene: object name {name!r} must be a non-empty str without '.'")
-        data: TriMeshData = read_mesh(src, drop_degenerate=drop_degenerate)
+        data: TriMeshData = read_mesh(src, drop_degenerate=drop_degenerate,
+                                      source=None if isinstance(src, (str, os.PathLike))
+                                      else f"object {name!r}")
         mat_name = materials.get(name, "concrete")
         vparams = default_vertex_parameters(mat_name, frequency,
                                             allow_out_of_band=allow_out_of_band)
