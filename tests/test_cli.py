@@ -185,7 +185,8 @@ def test_11_fit_and_compare_write_reports_and_resume(tmp_path):
     again = json.loads((out / "summary.json").read_text())
     np.testing.assert_allclose(again["mmIR"]["loss"], summary["mmIR"]["loss"], rtol=1e-6)
     cmp_out = tmp_path / "cmp"
-    assert main(["compare", *common, "--sionna-samples", "2000", "--out", str(cmp_out)]) == 0
+    assert main(["compare", *common, "--sionna-samples", "2000", "--denoise",
+                 "--sampling", "facets", "--out", str(cmp_out)]) == 0
     table = (cmp_out / "table2.md").read_text()
     assert "mmIR" in table and "Sionna RT" in table
 
@@ -201,9 +202,14 @@ def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
         Capture(frames, cap.radar, {}, "x").save(str(nan))
     junk = tmp_path / "junk.bin"
     junk.write_bytes(b"\x00" * 7)
+    empty = tmp_path / "empty.ply"
+    empty.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                     "property float y\nproperty float z\nelement face 0\n"
+                     "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n")
     cases = [([tgt, str(behind)], "do not overlap"), ([str(tmp_path / "no.h5"), wall], "no.h5"),
              ([str(junk), wall], "junk.bin"), ([tgt, str(tmp_path / "no.ply")], "does not exist"),
-             ([tgt, wall, "--iterations", "0"], "iterations")]
+             ([tgt, wall, "--iterations", "0"], "iterations"),
+             ([tgt, str(empty), "--denoise"], "no faces")]
     for args, word in cases:
         out = tmp_path / "o"
         code = main(["fit", *args, "--rays", "500", "--out", str(out)])

@@ -42,6 +42,11 @@ def add_parsers(sub) -> None:
         p.add_argument("--lr", type=float, default=0.05)
         p.add_argument("--rays", type=int, default=20_000, help="mmIR rays per iteration")
         p.add_argument("--depth", type=int, default=2)
+        p.add_argument("--sampling", default="random", choices=["random", "facets"],
+                       help="mmIR path sampling (facets: deterministic per-facet quadrature)")
+        p.add_argument("--denoise", action="store_true",
+                       help="denoise the meshes first (LiDAR scans; scene/denoise.py, "
+                            "radius 3 median edge lengths); both models get the result")
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--resume", action="store_true", help="continue from the checkpoint")
         p.add_argument("--overwrite", action="store_true", help="replace an existing report")
@@ -67,8 +72,23 @@ def _setup(args):
     for path in args.meshes:
         names[os.path.splitext(os.path.basename(path))[0].replace(".", "_")] = path
     mats = _named(args.material, "--material", str)
+    if getattr(args, "denoise", False):
+        names = _denoised(names)
     scene = load_scene(names, materials=mats, radar=radar)
     return cap, radar, names, mats, scene
+
+
+def _denoised(paths: dict) -> dict:
+    """name -> denoised ``trimesh.Trimesh`` of validated mesh files."""
+    import trimesh
+
+    from ..scene import denoise_meshes, read_mesh
+
+    meshes = {}
+    for name, path in paths.items():
+        data = read_mesh(path)
+        meshes[name] = trimesh.Trimesh(data.vertices, data.faces, process=False)
+    return denoise_meshes(meshes, radius=None, crease_angle_deg=20.0)
 
 
 def _posed(radar, args):
@@ -95,7 +115,8 @@ def _run(args, with_sionna: bool) -> int:
 
     cap, radar, names, mats, scene = _setup(args)
     ra_ref = target_ra(cap.frames, radar)
-    mm = MMIRModel(scene, solver_options=dict(num_rays=args.rays, max_depth=args.depth))
+    mm = MMIRModel(scene, solver_options=dict(num_rays=args.rays, max_depth=args.depth,
+                                              sampling=args.sampling))
     _check_overlap(mm, args.capture)
     models = [("mmIR", mm)]
     if with_sionna:
