@@ -92,6 +92,23 @@ class NufftSynthesis(FactorisedSynthesis):
         return finufft.Plan(kind, (self.K,), n_trans=n_trans, eps=self.eps, isign=1,
                             dtype=np.complex64, nthreads=1, modeord=0)
 
+    def _run(self, fn, kind: int, n_trans: int) -> list:
+        """``fn(items, plan)`` on the worker threads, one FINUFFT plan each.
+
+        Plans are made and destroyed on this (the calling) thread: FFTW's
+        planner is not thread-safe (only execution is); FINUFFT guards it,
+        this keeps the workers to ``setpts`` / ``execute`` regardless.
+        """
+        items = self._items()
+        n = max(1, min(self.workers, len(items)))
+        plans = [self._plan(kind, n_trans) for _ in range(n)]
+        groups = [(items[g::n], plans[g]) for g in range(n)]
+        try:
+            return _in_groups(lambda grp: fn(*grp[0]), groups, n)
+        finally:
+            del groups
+            plans.clear()
+
     def _items(self):
         """``(row, path slice)`` work items, rows fastest."""
         P = self.P
@@ -109,9 +126,8 @@ class NufftSynthesis(FactorisedSynthesis):
 
         B = self.er * self.cgr                                    # [R, P] Rx part of the strength
 
-        def run(items):
+        def run(items, plan):
             out = np.zeros((self.T * self.L, self.R, self.K), np.complex64)
-            plan = self._plan(1, 1)
             for i, sl in items:
                 pts = self._points(i, sl)
                 strength = (self.gt[i, sl] * self.et[i, sl])[None] * B[:, sl]
@@ -120,7 +136,7 @@ class NufftSynthesis(FactorisedSynthesis):
                     out[i, r] += plan.execute(strength[r])
             return out
 
-        out = np.sum(_in_groups(run, self._items(), self.workers), axis=0)
+        out = np.sum(self._run(run, 1, 1), axis=0)
         s = out.reshape(self.T, self.L, self.R, self.K).transpose(0, 2, 1, 3)
         return np.ascontiguousarray(np.broadcast_to(s, self.radar.adc_shape))
 
@@ -148,8 +164,7 @@ class NufftSynthesis(FactorisedSynthesis):
         cgr = self.cgr                                            # [R, P] c g_r
         c = self.x.c.astype(np.complex64)[None]                   # [1, P]
 
-        def run(items):
-            plan = self._plan(2, 2)
+        def run(items, plan):
             acc = dict(cg=np.zeros(P, np.complex128), g_t=np.zeros((T, P)),
                        tau_t=np.zeros((T, P)), g_r=np.zeros((R, P)), tau_r=np.zeros((R, P)),
                        tau_rate=np.zeros(P) if self.moving else None)
@@ -180,7 +195,7 @@ class NufftSynthesis(FactorisedSynthesis):
                     acc["tau_rate"][sl] += (-2 * np.pi) * gt * np.sum(np.imag(cg * V), axis=0)
             return acc
 
-        parts = _in_groups(run, self._items(), self.workers)
+        parts = self._run(run, 2, 2)
         out = parts[0]
         for p in parts[1:]:
             for k, v in p.items():
