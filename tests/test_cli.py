@@ -229,3 +229,5 @@ def test_13_bench_reports_both_timings_and_rejects_bad_options(tmp_path, capsys)
     assert abs(res["ratio_mmir_over_sionna"] - res["mmir_s_per_it"] / res["sionna_s_per_it"]) < 1e-9
     assert main(["bench", "--scene", "moon"]) == EXIT_BAD_INPUT
     assert "unknown scene" in capsys.readouterr().err
+    assert main(["bench", "--sionna-depth", "0"]) == EXIT_BAD_INPUT
+    assert "--sionna-depth must be >= 1" in capsys.readouterr().err

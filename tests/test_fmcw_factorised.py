@@ -457,3 +457,36 @@ def test_14_nufft_point_target_closed_form():
     tau = tau_t[:, None, :] + tau_r[None, :, :]                           # [T, R, 1]
     ref = c[0] * np.exp(2j * np.pi * (radar.start_frequency + radar.slope * tk) * tau)
     assert _rel(s[:, :, 0, :], ref) < 1e-4
+
+
+@pytest.mark.parametrize("moving", [False, True], ids=["static", "moving"])
+def test_15_pruning_drops_exactly_the_weak_paths(moving):
+    """``PathFactors.adc(radar, min_rel_power)``: the ADC of the paths whose mean
+    pair power ``|c|^2 mean g_t^2 mean g_r^2`` exceeds the threshold (chosen
+    here independently), the dropped paths get no gradient, 0 keeps all."""
+    dr, mi = _drjit()
+    from sionna_mmir.paths.radar_paths import PathFactors
+
+    radar = _cascade_cut(num_chirps=2)
+    T, R = radar.num_tx, radar.num_rx
+    f = _factors(radar, 40, moving, seed=21, quantum=2.0 ** -40)
+    f[0][::3] *= 1e-5                                  # every third path: power ~1e-10 x
+    # float32-representable values: both routes see exactly the same inputs
+    f = [None if v is None else (v.astype(np.complex64) if np.iscomplexobj(v)
+                                 else v.astype(np.float32)).astype(v.dtype) for v in f]
+    c, g_t, tau_t, g_r, tau_r, rho = f
+    power = np.abs(c) ** 2 * np.mean(g_t ** 2, axis=0) * np.mean(g_r ** 2, axis=0)
+    keep = power > 1e-8 * power.max()
+    assert 0 < keep.sum() < len(c)
+    x = _dr_factors(f, mi, dr)
+    pf = PathFactors(*x.values(), shape=(T, R, len(c)))
+    adc = pf.adc(radar, 1e-8)
+    got = np.array(adc.real) + 1j * np.array(adc.imag)
+    sub = [None if v is None else v[..., keep] for v in f]
+    assert _rel(got.reshape(radar.adc_shape), synthesize_adc_factorised(radar, *sub)) < 1e-4
+    full = pf.adc(radar, 0.0)
+    np.testing.assert_allclose(np.array(full.real).reshape(radar.adc_shape),
+                               synthesize_adc_factorised(radar, *f).real, atol=1e-4 * np.abs(got).max())
+    dr.backward(dr.sum(adc.real.array) + dr.sum(adc.imag.array))
+    g = np.array(dr.grad(x["c_re"]))
+    assert np.all(g[~keep] == 0) and np.all(g[keep] != 0)

@@ -21,7 +21,12 @@ def add_parser(sub) -> None:
     p = sub.add_parser("bench", help="seconds per fit iteration: mmIR vs Sionna RT, same run")
     p.add_argument("--scene", default="hallway", help="benchmark scene (sionna_mmir.scenes)")
     p.add_argument("--rays", type=int, default=10_000)
-    p.add_argument("--depth", type=int, default=2)
+    p.add_argument("--depth", type=int, default=2, help="mmIR max depth")
+    p.add_argument("--sionna-depth", type=int, default=3, help="Sionna RT max depth")
+    p.add_argument("--sampling", default="random", choices=["random", "facets"],
+                   help="mmIR path sampling (facets: the benchmark table's fits)")
+    p.add_argument("--denoise", action="store_true",
+                   help="denoise the LiDAR mesh first (as the benchmark table does)")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--max-triangles", type=int, default=50_000, help="LiDAR mesh budget")
     p.add_argument("--json", default=None, help="write results here")
@@ -68,25 +73,34 @@ def cmd_bench(args) -> int:
 
     if args.scene not in SCENES:
         raise ConfigError(f"unknown scene {args.scene!r}; choose from {sorted(SCENES)}")
-    if args.rays < 1 or args.repeat < 1:
-        raise ConfigError("--rays and --repeat must be >= 1")
+    if args.rays < 1 or args.repeat < 1 or args.depth < 1 or args.sionna_depth < 1:
+        raise ConfigError("--rays, --repeat, --depth and --sionna-depth must be >= 1")
     spec = build_scene(args.scene, seed=0)
     radar = scene_radar(spec)
     lidar = lidarize_scene(spec, seed=0, max_triangles=args.max_triangles)
+    if args.denoise:
+        from ..scene import denoise_meshes
+
+        lidar = denoise_meshes(lidar, radius=None, crease_angle_deg=20.0)
     mats = {k: spec.materials[k] for k in lidar}
     mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
-                   solver_options=dict(num_rays=args.rays, max_depth=args.depth))
+                   solver_options=dict(num_rays=args.rays, max_depth=args.depth,
+                                       sampling=args.sampling))
     adc, _ = mm.render(mm.latents(), seed=7)
     target = range_azimuth(to_numpy(adc), radar)[0] ** 0.8      # any fixed, different map
-    sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=args.depth + 1,
+    sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=args.sionna_depth,
                                      samples_per_src=args.rays))
     out = {"scene": args.scene, "triangles": int(sum(len(m.faces) for m in lidar.values())),
-           "rays": args.rays, "radar": radar.name, "rounds": args.repeat}
+           "rays": args.rays, "radar": radar.name, "rounds": args.repeat,
+           "sampling": args.sampling, "depth": args.depth, "sionna_depth": args.sionna_depth,
+           "denoise": bool(args.denoise)}
     med, ratio = _time_interleaved((mm, sio), target, args.repeat)
     out["mmir_s_per_it"], out["sionna_s_per_it"] = float(med[0]), float(med[1])
     out["ratio_mmir_over_sionna"] = ratio          # median of the per-round ratios
-    print(f"| scene | triangles | rays | mmIR s/it | Sionna RT s/it | ratio |\n|---|---|---|---|---|---|\n"
-          f"| {out['scene']} | {out['triangles']} | {out['rays']} | {out['mmir_s_per_it']:.2f} | "
+    print(f"| scene | triangles | rays | mmIR sampling, depth | mmIR s/it | Sionna RT s/it | ratio |\n"
+          f"|---|---|---|---|---|---|---|\n"
+          f"| {out['scene']} | {out['triangles']} | {out['rays']} | {args.sampling}, {args.depth} "
+          f"| {out['mmir_s_per_it']:.2f} | "
           f"{out['sionna_s_per_it']:.2f} | {out['ratio_mmir_over_sionna']:.2f} |")
     if args.json:
         with open(args.json, "w") as f:

@@ -39,11 +39,16 @@ class MMIRModel:
                       per element
     solver_options    options of :class:`~sionna_mmir.paths.RadarPathSolver`
                       (``num_rays``, ``max_depth``, ``cone_angle_deg``, ...)
+    min_rel_power     paths weaker than this x the strongest are left out of
+                      the ADC synthesis (default 1e-8, -80 dB: on the
+                      facet-sampled hallway at depth 3 it drops half of 2M
+                      paths holding 1.2e-5 of the power; 0 keeps all)
     ================  ========================================================
     """
 
     def __init__(self, scene, radar=None, *, learn=("materials", "normals", "beam"),
-                 tx_pattern=None, rx_pattern=None, solver_options: dict | None = None):
+                 tx_pattern=None, rx_pattern=None, solver_options: dict | None = None,
+                 min_rel_power: float = 1e-8):
         from ..paths import RadarPathSolver
         from ..radio_devices import CosinePowerPattern
 
@@ -57,6 +62,9 @@ class MMIRModel:
         self.learn = tuple(learn)
         self.tx_pattern = tx_pattern or CosinePowerPattern(n_elements=self.radar.num_tx)
         self.rx_pattern = rx_pattern or CosinePowerPattern(n_elements=self.radar.num_rx)
+        if not (np.isfinite(min_rel_power) and 0 <= min_rel_power < 1):
+            raise ConfigError(f"MMIRModel: min_rel_power must be in [0, 1), got {min_rel_power!r}")
+        self.min_rel_power = float(min_rel_power)
         self.solver = RadarPathSolver()
         self.options = dict(num_rays=20_000, max_depth=2)
         self.options.update(solver_options or {})
@@ -143,7 +151,7 @@ class MMIRModel:
         handles = self._assign(z, grad=True)
         paths = self.solver(self.scene, self.radar, seed=int(seed), tx_pattern=self.tx_pattern,
                             rx_pattern=self.rx_pattern, **self.options)
-        return paths.adc(self.radar), handles
+        return paths.adc(self.radar, self.min_rel_power), handles
 
     def physical(self, z: dict) -> dict:
         """Latents -> physical values (materials through the reparameterisation)."""

@@ -100,12 +100,48 @@ class PathFactors:
         return dr.sum((dr.square(self.c_re) + dr.square(self.c_im))
                       * _sum_rows(dr.square(self.g_t), T, P) * _sum_rows(dr.square(self.g_r), R, P))
 
-    def adc(self, radar):
-        """Raw ADC (``DrAdc``, AD) by the factorised synthesiser."""
+    def path_powers(self) -> np.ndarray:
+        """Detached ``|c_p|^2 mean_t g_t^2 mean_r g_r^2`` per path, float64 ``[P]``
+        (the path's mean power over the Tx-Rx pairs)."""
+        T, R, P = self.shape
+
+        def n(x):
+            return np.asarray(dr.detach(x), dtype=np.float64)
+        return (n(self.c_re) ** 2 + n(self.c_im) ** 2) \
+            * np.mean(n(self.g_t).reshape(T, P) ** 2, axis=0) \
+            * np.mean(n(self.g_r).reshape(R, P) ** 2, axis=0)
+
+    def pruned(self, min_rel_power: float) -> "PathFactors":
+        """The paths whose power (:meth:`path_powers`) exceeds ``min_rel_power``
+        times the strongest's, gathered inside the AD graph (dropped paths get
+        no gradient); ``self`` when none is dropped."""
+        T, R, P = self.shape
+        if not min_rel_power > 0 or P == 0:
+            return self
+        pw = self.path_powers()
+        keep = np.flatnonzero(pw > float(min_rel_power) * pw.max())
+        if keep.size == P:
+            return self
+        n = keep.size
+        idx = mi.UInt32(keep.astype(np.uint32))
+
+        def rows(x, m):
+            flat = (np.arange(m, dtype=np.uint32)[:, None] * np.uint32(P) + keep[None]).ravel()
+            return dr.gather(mi.Float, x, mi.UInt32(flat))
+        return PathFactors(dr.gather(mi.Float, self.c_re, idx), dr.gather(mi.Float, self.c_im, idx),
+                           rows(self.g_t, T), rows(self.tau_t, T), rows(self.g_r, R),
+                           rows(self.tau_r, R),
+                           None if self.rate is None else dr.gather(mi.Float, self.rate, idx),
+                           (T, R, n))
+
+    def adc(self, radar, min_rel_power: float = 0.0):
+        """Raw ADC (``DrAdc``, AD) by the factorised synthesiser; paths weaker
+        than ``min_rel_power`` x the strongest are left out (:meth:`pruned`)."""
         from ..fmcw.drjit_factorised import synthesize_adc_factorised_drjit
 
-        return synthesize_adc_factorised_drjit(radar, self.c_re, self.c_im, self.g_t, self.tau_t,
-                                               self.g_r, self.tau_r, self.rate)
+        f = self.pruned(min_rel_power)
+        return synthesize_adc_factorised_drjit(radar, f.c_re, f.c_im, f.g_t, f.tau_t,
+                                               f.g_r, f.tau_r, f.rate)
 
 
 def _sum_rows(x, n: int, P: int):
@@ -225,11 +261,13 @@ class RadarPaths:
             return self.factors.power()
         return dr.sum(dr.square(self.a_re) + dr.square(self.a_im))
 
-    def adc(self, radar):
-        """Raw ADC (a ``DrAdc``, AD): the factorised synthesiser when factorised,
-        else :func:`~sionna_mmir.fmcw.synthesize_adc` on the expanded arrays."""
+    def adc(self, radar, min_rel_power: float = 0.0):
+        """Raw ADC (a ``DrAdc``, AD): the factorised synthesiser when factorised
+        (paths weaker than ``min_rel_power`` x the strongest left out, see
+        :meth:`PathFactors.pruned`), else :func:`~sionna_mmir.fmcw.synthesize_adc`
+        on the expanded arrays (no pruning)."""
         if self.is_factorised:
-            return self.factors.adc(radar)
+            return self.factors.adc(radar, min_rel_power)
         from ..fmcw.synthesize import synthesize_adc
 
         a_re, a_im, tau, rate = self.tensors()
