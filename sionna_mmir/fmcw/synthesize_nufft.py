@@ -30,6 +30,8 @@ renderer's delays (1e-3 rad of carrier phase at 4.5 m).
 """
 from __future__ import annotations
 
+import numpy as np
+
 from .synthesize_factorised import FactorisedSynthesis, _cis, _in_groups
 
 #: requested NUFFT tolerance (relative l2 per transform)
@@ -41,8 +43,6 @@ BLOCK_PATHS = 1 << 15
 
 def _wrap(cycles):
     """``2 pi (cycles mod 1)`` in ``[-pi, pi)`` as float32 (FINUFFT's point range)."""
-    import numpy as np
-
     frac = cycles - np.floor(cycles + 0.5)
     return (2 * np.pi * frac).astype(np.float32)
 
@@ -65,8 +65,6 @@ class NufftSynthesis(FactorisedSynthesis):
     # ------------------------------------------------------------ set-up
     def _prepare(self):
         """Per-row and per-Rx phasors and point offsets (float64 phases)."""
-        import numpy as np
-
         x, h = self.x, self.h
         a = self.S * self.dt                                      # cycles/sample per second
         fh = self.fk0 + h * a                                     # strength frequency [Hz]
@@ -87,8 +85,6 @@ class NufftSynthesis(FactorisedSynthesis):
 
     def _plan(self, kind: int, n_trans: int):
         import finufft
-        import numpy as np
-
         return finufft.Plan(kind, (self.K,), n_trans=n_trans, eps=self.eps, isign=1,
                             dtype=np.complex64, nthreads=1, modeord=0)
 
@@ -122,8 +118,6 @@ class NufftSynthesis(FactorisedSynthesis):
 
     def forward(self):
         """ADC, complex64 ``[T, R, num_chirps, K]``."""
-        import numpy as np
-
         B = self.er * self.cgr                                    # [R, P] Rx part of the strength
 
         def run(items, plan):
@@ -152,8 +146,6 @@ class NufftSynthesis(FactorisedSynthesis):
         ``W = sum_k f_k conj(G) E = f_k0 Z0 + S dt Z1`` and, with motion,
         ``rho: -2 pi Im(c g_t g_r (T_tl W + f0 (t_0 Z0 + dt Z1)))``.
         """
-        import numpy as np
-
         T, R, P, K = self.T, self.R, self.P, self.K
         Gk = self._upstream(G)                                    # [K, T*L, R] conj(G)
         Gk = np.ascontiguousarray(Gk.transpose(1, 2, 0))          # [T*L, R, K]
