@@ -24,15 +24,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 
 def main(argv=None) -> int:
-    import sionna_mmir  # noqa: F401
-    from sionna_mmir.baseline import SionnaBaseline
-    from sionna_mmir.compare.ground_truth import render_ground_truth
-    from sionna_mmir.compare.harness import run_sides, target_ra
-    from sionna_mmir.compare.report import save_side_figures, table_rows, write_table
-    from sionna_mmir.fit import MMIRModel, SionnaModel, reparam
-    from sionna_mmir.processing.imaging import range_azimuth
-    from sionna_mmir.scene import denoise_meshes, load_scene
-    from sionna_mmir.scenes import SCENES, build_scene, lidarize_scene, true_materials
+    from sionna_mmir.compare.report import write_table
+    from sionna_mmir.scenes import SCENES
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--scenes", default=",".join(SCENES))
@@ -59,52 +52,99 @@ def main(argv=None) -> int:
                    help="fit the raw LiDAR-like mesh (default: both models get it denoised "
                         "by sionna_mmir.scene.denoise_meshes)")
     p.add_argument("--out", default=HERE)
+    p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    p.add_argument("--worker-json", default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.worker:
+        return _scene(args.worker, args)
     fig_dir = os.path.join(args.out, "figures")
     os.makedirs(fig_dir, exist_ok=True)
     rows, details = [], {}
     for name in args.scenes.split(","):
-        t0 = time.time()
-        spec = build_scene(name, seed=0)
-        cap = render_ground_truth(spec, seed=0, num_rays=args.gt_rays, frames=args.gt_frames,
-                                  max_edge=args.gt_max_edge, sampling=args.gt_sampling)
-        radar = cap.radar
-        ra_ref = target_ra(cap.frames, radar)
-        lidar = lidarize_scene(spec, seed=0, max_triangles=args.lidar_max_triangles)
-        if not args.no_denoise:
-            lidar = denoise_meshes(lidar, radius=None, crease_angle_deg=20.0)
-        mats = {k: spec.materials[k] for k in lidar}
-        mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
-                       solver_options=dict(num_rays=args.rays, max_depth=args.depth,
-                                           sampling=args.sampling))
-        sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=3,
-                                         samples_per_src=args.sionna_samples))
-        sides = run_sides((("mmIR", mm), ("Sionna RT", sio)), ra_ref, cap.frames[0],
-                          iterations=args.iterations, lr=args.lr)
-        rows += table_rows(name, sides)
-        # material recovery (mmIR): fitted per-vertex parameters vs the truth at the same points
-        truth = true_materials(spec, seed=0, objects=lidar)
-        err = {}
-        for obj, tmat in truth.items():
-            fitted = reparam.to_physical(sides["mmIR"].extra["latents"][f"{obj}.materials"])
-            err[obj] = np.median(np.abs(fitted - tmat) / np.maximum(np.abs(tmat), 1e-12), axis=0)
-        med = np.median(np.stack(list(err.values())), axis=0)
-        _, ranges, az = range_azimuth(cap.frames[0], radar)
-        save_side_figures(os.path.join(fig_dir, f"{name}_ra.png"),
-                          os.path.join(fig_dir, f"{name}_loss.png"), ("ground truth", ra_ref),
-                          sides, ranges, az, title=name)
-        details[name] = {k: {"before": v.metrics_before, "after": v.metrics_after,
-                             "s_per_it": v.seconds_per_it} for k, v in sides.items()}
-        details[name]["mmIR_material_median_rel_error"] = dict(zip(
-            ["eps_real", "eps_imag", "sigma_h", "l_c", "tau", "d"], med.tolist()))
-        details[name]["wall_s"] = time.time() - t0
-        details[name]["settings"] = {k: v for k, v in vars(args).items() if k not in ("out", "scenes")}
-        print(f"{name}: " + ", ".join(f"{k} corr {v.metrics_after['ra_correlation']:.3f} "
-                                      f"({v.seconds_per_it:.1f} s/it)" for k, v in sides.items()),
-              flush=True)
+        res = _scene_in_subprocess(name, argv)
+        rows += res["rows"]
+        details[name] = res["details"]
         write_table(rows, args.out, "table2_benchmark")
         with open(os.path.join(args.out, "benchmark_details.json"), "w") as f:
             json.dump(details, f, indent=1, default=float)
+    return 0
+
+
+def _scene_in_subprocess(name: str, argv) -> dict:
+    """Run one scene in a fresh interpreter (``--worker``); one retry if it dies
+    (Dr.Jit 1.5 has segfaulted in long facet fits, see NOTES.md session 6)."""
+    import subprocess
+    import tempfile
+
+    base = list(argv if argv is not None else sys.argv[1:])
+    for attempt in (1, 2):
+        with tempfile.TemporaryDirectory() as tmp:
+            out = os.path.join(tmp, "scene.json")
+            cmd = [sys.executable, os.path.abspath(__file__), *base, "--worker", name,
+                   "--worker-json", out]
+            code = subprocess.run(cmd).returncode
+            if code == 0:
+                with open(out) as f:
+                    return json.load(f)
+        print(f"{name}: worker exited with {code} (attempt {attempt})", file=sys.stderr, flush=True)
+    raise RuntimeError(f"{name}: the scene failed twice")
+
+
+def _scene(name: str, args) -> int:
+    """One benchmark scene: ground truth, scaffold, both fits, figures; rows and
+    details to ``--worker-json``."""
+    import sionna_mmir  # noqa: F401
+    from sionna_mmir.baseline import SionnaBaseline
+    from sionna_mmir.compare.ground_truth import render_ground_truth
+    from sionna_mmir.compare.harness import run_sides, target_ra
+    from sionna_mmir.compare.report import save_side_figures, table_rows
+    from sionna_mmir.fit import MMIRModel, SionnaModel, reparam
+    from sionna_mmir.processing.imaging import range_azimuth
+    from sionna_mmir.scene import denoise_meshes, load_scene
+    from sionna_mmir.scenes import build_scene, lidarize_scene, true_materials
+
+    fig_dir = os.path.join(args.out, "figures")
+    t0 = time.time()
+    spec = build_scene(name, seed=0)
+    cap = render_ground_truth(spec, seed=0, num_rays=args.gt_rays, frames=args.gt_frames,
+                              max_edge=args.gt_max_edge, sampling=args.gt_sampling)
+    radar = cap.radar
+    ra_ref = target_ra(cap.frames, radar)
+    lidar = lidarize_scene(spec, seed=0, max_triangles=args.lidar_max_triangles)
+    if not args.no_denoise:
+        lidar = denoise_meshes(lidar, radius=None, crease_angle_deg=20.0)
+    mats = {k: spec.materials[k] for k in lidar}
+    mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
+                   solver_options=dict(num_rays=args.rays, max_depth=args.depth,
+                                       sampling=args.sampling))
+    sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=3,
+                                     samples_per_src=args.sionna_samples))
+    sides = run_sides((("mmIR", mm), ("Sionna RT", sio)), ra_ref, cap.frames[0],
+                      iterations=args.iterations, lr=args.lr)
+    rows = table_rows(name, sides)
+    # material recovery (mmIR): fitted per-vertex parameters vs the truth at the same points
+    truth = true_materials(spec, seed=0, objects=lidar)
+    err = {}
+    for obj, tmat in truth.items():
+        fitted = reparam.to_physical(sides["mmIR"].extra["latents"][f"{obj}.materials"])
+        err[obj] = np.median(np.abs(fitted - tmat) / np.maximum(np.abs(tmat), 1e-12), axis=0)
+    med = np.median(np.stack(list(err.values())), axis=0)
+    _, ranges, az = range_azimuth(cap.frames[0], radar)
+    save_side_figures(os.path.join(fig_dir, f"{name}_ra.png"),
+                      os.path.join(fig_dir, f"{name}_loss.png"), ("ground truth", ra_ref),
+                      sides, ranges, az, title=name)
+    details = {k: {"before": v.metrics_before, "after": v.metrics_after,
+                   "s_per_it": v.seconds_per_it} for k, v in sides.items()}
+    details["mmIR_material_median_rel_error"] = dict(zip(
+        ["eps_real", "eps_imag", "sigma_h", "l_c", "tau", "d"], med.tolist()))
+    details["wall_s"] = time.time() - t0
+    details["settings"] = {k: v for k, v in vars(args).items()
+                           if k not in ("out", "scenes", "worker", "worker_json")}
+    print(f"{name}: " + ", ".join(f"{k} corr {v.metrics_after['ra_correlation']:.3f} "
+                                  f"({v.seconds_per_it:.1f} s/it)" for k, v in sides.items()),
+          flush=True)
+    with open(args.worker_json, "w") as f:
+        json.dump({"rows": rows, "details": details}, f, indent=1, default=float)
     return 0
 
 
