@@ -121,13 +121,21 @@ STEPS = dict(c=1e-6, g_t=1e-6, tau_t=1e-14, g_r=1e-6, tau_r=1e-14, tau_rate=1e-1
 
 
 @pytest.mark.parametrize("moving", [False, True], ids=["static", "moving"])
-def test_04_vjp_matches_central_differences(moving):
+@pytest.mark.parametrize("synthesis", ["exact", "nufft"])
+def test_04_vjp_matches_central_differences(moving, synthesis):
+    """VJP of the exact twin and of the NUFFT synthesiser vs central
+    differences of the complex128 expanded reference (independent of both)."""
+    from sionna_mmir.fmcw.synthesize_nufft import NufftSynthesis
+
     radar = RadarConfig.awr1843(num_chirps=3)
     f = _factors(radar, 4, moving, seed=2)
     rng = np.random.default_rng(1)
     target = 0.7 * synthesize_adc_basic(radar, *_expand(*f)) + rng.normal(size=radar.adc_shape)
     s = synthesize_adc_factorised(radar, *f)
-    grads = synthesize_adc_factorised_vjp(radar, 2 * (s - target), *f)
+    if synthesis == "exact":
+        grads = synthesize_adc_factorised_vjp(radar, 2 * (s - target), *f)
+    else:
+        grads = NufftSynthesis(radar, check_factor_inputs(radar, *f)).vjp(2 * (s - target))
     assert (grads["tau_rate"] is None) == (not moving)
     worst = 0.0
     for k, name in enumerate(NAMES):
@@ -148,7 +156,8 @@ def test_04_vjp_matches_central_differences(moving):
                 err = abs(ad - fd) / abs(fd)
                 worst = max(worst, err)
                 assert err < 0.02, (name, idx, unit, ad, fd)
-    assert worst < 1e-3           # measured ~1e-5: the adjoint is exact
+    # measured ~1e-5 (exact) / 1.1e-3 (NUFFT: float32, eps 1e-5, on the smallest entry)
+    assert worst < (1e-3 if synthesis == "exact" else 5e-3)
 
 
 @pytest.mark.parametrize("moving", [False, True], ids=["static", "moving"])
