@@ -48,9 +48,9 @@ def main(argv=None) -> int:
                         "are split further by the quadrature)")
     p.add_argument("--lidar-max-triangles", type=int, default=50_000)
     p.add_argument("--depth", type=int, default=2, help="mmIR max depth")
-    p.add_argument("--learn", default="materials,beam",
-                   help="what mmIR learns (default materials,beam: on the denoised scaffold "
-                        "learned normals cost accuracy, lab 0.821 vs 0.855; NOTES.md)")
+    p.add_argument("--learn", default="materials,normals,beam",
+                   help="what mmIR learns (paper default; materials,beam: higher mean, "
+                        "behind Sionna on the street; comparisons/table2_benchmark_materials_beam.md)")
     p.add_argument("--no-denoise", action="store_true",
                    help="fit the raw LiDAR-like mesh (default: both models get it denoised "
                         "by sionna_mmir.scene.denoise_meshes)")
