@@ -257,3 +257,13 @@ def test_15_bad_given_normals_raise_naming_the_mesh(bad):
     mesh = trimesh.Trimesh(vertices=PLANE_V, faces=PLANE_F, vertex_normals=n, process=False)
     with pytest.raises(InputValueError, match="plate.*vertex normals are NaN/Inf or zero"):
         load_scene({"plate": mesh})
+
+
+def test_16_cached_normals_of_an_unused_vertex_do_not_raise():
+    """Normals trimesh computed and cached (someone read ``vertex_normals``)
+    count as given; an unreferenced vertex (zero normal) is not an error."""
+    v = np.vstack([PLANE_V, [[5.0, 5.0, 5.0]]])
+    mesh = trimesh.Trimesh(vertices=v, faces=PLANE_F, process=False)
+    _ = mesh.vertex_normals                              # populates trimesh's cache
+    n = np.array(load_scene({"plate": mesh}).mesh_objects["plate"].vertex_normals)
+    assert np.allclose(n[:4], [0.0, 0.0, 1.0], atol=1e-6)

@@ -95,7 +95,10 @@ class MMIRModel:
         chase the min-max loss's few peaks and the rest of the map degrades
         (hallway, facet quadrature, 8 iterations at lr 0.05: materials alone
         0.42 -> 0.58, + normals and beams at 0.1x 0.42 -> 0.69; at 1x on a
-        150k mesh 0.64 -> 0.44).
+        150k mesh 0.64 -> 0.44). On a *denoised* scaffold (normals within
+        ~0.1 deg already) even this step costs accuracy (lab, 12 iterations:
+        0.821 with normals vs 0.855 without); leave them out of ``learn``
+        there (NOTES.md, session 6).
         """
         out = {}
         for k in self.latents():

@@ -118,24 +118,30 @@ def read_mesh(mesh, source: str | None = None,
         if faces.size == 0:
             raise InputValueError(f"{source}: mesh is empty after dropping "
                                   f"{degenerate.size} degenerate triangles")
-    normals = _given_normals(loaded, len(vertices), source)
+    normals = _given_normals(loaded, len(vertices), faces, source)
     if normals is None:
         normals = _vertex_normals(vertices, faces)
     return TriMeshData(source=source, vertices=vertices, faces=faces, normals=normals)
 
 
-def _given_normals(loaded, n_vertices: int, source: str):
+def _given_normals(loaded, n_vertices: int, faces: np.ndarray, source: str):
     """The mesh's own vertex normals (a PLY's ``nx ny nz``, a ``Trimesh`` built
-    with ``vertex_normals=``), normalised, or None when it has none."""
+    with ``vertex_normals=``; trimesh keeps them in its cache), normalised, or
+    None when it has none.  Only vertices used by ``faces`` must have a valid
+    normal; unused ones get +z."""
     cache = getattr(loaded, "_cache", None)
     if cache is None or "vertex_normals" not in cache:
         return None
-    n = np.asarray(loaded.vertex_normals, dtype=np.float64)
+    n = np.array(loaded.vertex_normals, dtype=np.float64)         # a copy (trimesh's is read-only)
     if n.shape != (n_vertices, 3):
         raise InputValueError(f"{source}: vertex normals have shape {n.shape}, expected "
                               f"({n_vertices}, 3)")
     norm = np.linalg.norm(n, axis=1)
-    bad = np.flatnonzero(~np.isfinite(norm) | (norm < 1e-12))
+    used = np.zeros(n_vertices, dtype=bool)
+    used[faces.ravel()] = True
+    invalid = ~np.isfinite(norm) | (norm < 1e-12)
+    n[invalid & ~used], norm[invalid & ~used] = (0.0, 0.0, 1.0), 1.0
+    bad = np.flatnonzero(invalid & used)
     if bad.size:
         raise InputValueError(f"{source}: {bad.size} vertex normals are NaN/Inf or zero "
                               f"(first vertices {bad[:5].tolist()})")
