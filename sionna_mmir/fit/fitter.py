@@ -166,6 +166,8 @@ def fit(model, target, *, iterations: int = 100, lr: float = 0.05, schedule: str
         dr.backward(loss)
         grads = {k: np.asarray(dr.grad(h), dtype=np.float64).reshape(z[k].shape)
                  for k, h in handles.items()}
+        if hasattr(model, "pullback"):       # handles are not the latents (e.g. smoothed normals)
+            grads = model.pullback(grads)
         value = float(np.asarray(dr.detach(loss))[0])
         if not np.isfinite(value):
             raise InputValueError(f"fit: loss became {value} at iteration {it}")

@@ -43,12 +43,19 @@ class MMIRModel:
                       the ADC synthesis (default 1e-8, -80 dB: on the
                       facet-sampled hallway at depth 3 it drops half of 2M
                       paths holding 1.2e-5 of the power; 0 keeps all)
+    normals_smoothing ``lambda`` of the Laplacian ("large steps")
+                      parameterisation of the learned normals
+                      (:mod:`~sionna_mmir.fit.smooth_param`; Nicolet et al.
+                      2021): the latents are ``(I + lambda L) n`` per object,
+                      so per-vertex noise in the steps is averaged over
+                      ``~sqrt(lambda)`` edges while a whole surface can still
+                      tilt (default 0: raw per-vertex normals)
     ================  ========================================================
     """
 
     def __init__(self, scene, radar=None, *, learn=("materials", "normals", "beam"),
                  tx_pattern=None, rx_pattern=None, solver_options: dict | None = None,
-                 min_rel_power: float = 1e-8):
+                 min_rel_power: float = 1e-8, normals_smoothing: float = 0.0):
         from ..paths import RadarPathSolver
         from ..radio_devices import CosinePowerPattern
 
@@ -65,6 +72,16 @@ class MMIRModel:
         if not (np.isfinite(min_rel_power) and 0 <= min_rel_power < 1):
             raise ConfigError(f"MMIRModel: min_rel_power must be in [0, 1), got {min_rel_power!r}")
         self.min_rel_power = float(min_rel_power)
+        if not (np.isfinite(normals_smoothing) and normals_smoothing >= 0):
+            raise ConfigError(f"MMIRModel: normals_smoothing must be >= 0, got {normals_smoothing!r}")
+        self.normals_smoothing = float(normals_smoothing)
+        self._normal_params = {}
+        if "normals" in self.learn and self.normals_smoothing > 0:
+            from .smooth_param import LaplacianParam
+
+            for name, obj in scene.mesh_objects.items():
+                self._normal_params[name] = LaplacianParam(
+                    obj.faces, np.asarray(obj.vertex_normals).shape[0], self.normals_smoothing)
         self.solver = RadarPathSolver()
         self.options = dict(num_rays=20_000, max_depth=2)
         self.options.update(solver_options or {})
@@ -76,7 +93,10 @@ class MMIRModel:
             if "materials" in self.learn:
                 z[f"{name}.materials"] = reparam.to_latent(np.array(obj.vertex_materials))
             if "normals" in self.learn:
-                z[f"{name}.normals"] = np.array(obj.vertex_normals, dtype=np.float64)
+                nrm = np.array(obj.vertex_normals, dtype=np.float64)
+                if name in self._normal_params:
+                    nrm = self._normal_params[name].to_latent(nrm)
+                z[f"{name}.normals"] = nrm
             if "positions" in self.learn:
                 z[f"{name}.positions"] = np.array(obj.vertex_positions, dtype=np.float64)
         if "beam" in self.learn:
@@ -129,7 +149,10 @@ class MMIRModel:
                 obj.vertex_materials = mi.TensorXf(reparam.to_physical_dr(t.array, n), (n, 6))
             k = f"{name}.normals"
             if k in z:
-                obj.vertex_normals = var(k, z[k])
+                nrm = z[k]
+                if name in self._normal_params:       # handle = normals; pullback() maps its grad
+                    nrm = self._normal_params[name].from_latent(nrm)
+                obj.vertex_normals = var(k, nrm)
             k = f"{name}.positions"
             if k in z:
                 obj.vertex_positions = var(k, z[k])
@@ -144,6 +167,16 @@ class MMIRModel:
         if any(k.endswith(".positions") for k in z):
             self.scene.sync()
         return handles
+
+    def pullback(self, grads: dict) -> dict:
+        """Gradients w.r.t. the render handles -> gradients w.r.t. the latents
+        (identity except for Laplacian-parameterised normals: ``A^-1 g``)."""
+        out = dict(grads)
+        for name, par in self._normal_params.items():
+            k = f"{name}.normals"
+            if k in out:
+                out[k] = par.pullback(out[k])
+        return out
 
     def apply(self, z: dict) -> None:
         """Write latents into the scene (detached)."""
@@ -161,6 +194,10 @@ class MMIRModel:
         out = {}
         for k, v in z.items():
             out[k] = reparam.to_physical(v) if k.endswith(".materials") else np.asarray(v)
+            obj = k[:-len(".normals")] if k.endswith(".normals") else None
+            if obj in self._normal_params:
+                n = self._normal_params[obj].from_latent(v)
+                out[k] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         return out
 
 
