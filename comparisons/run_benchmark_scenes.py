@@ -51,6 +51,10 @@ def main(argv=None) -> int:
     p.add_argument("--learn", default="materials,normals,beam",
                    help="what mmIR learns (paper default; materials,beam: higher mean, "
                         "behind Sionna on the street; comparisons/table2_benchmark_materials_beam.md)")
+    p.add_argument("--min-rel-power", type=float, default=1e-8,
+                   help="mmIR path pruning threshold (MMIRModel.min_rel_power)")
+    p.add_argument("--normals-smoothing", type=float, default=0.0,
+                   help="lambda of the Laplacian parameterisation of learned normals")
     p.add_argument("--no-denoise", action="store_true",
                    help="fit the raw LiDAR-like mesh (default: both models get it denoised "
                         "by sionna_mmir.scene.denoise_meshes)")
@@ -118,7 +122,8 @@ def _scene(name: str, args) -> int:
         lidar = denoise_meshes(lidar, radius=None, crease_angle_deg=20.0)
     mats = {k: spec.materials[k] for k in lidar}
     mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
-                   learn=tuple(args.learn.split(",")),
+                   learn=tuple(args.learn.split(",")), min_rel_power=args.min_rel_power,
+                   normals_smoothing=args.normals_smoothing,
                    solver_options=dict(num_rays=args.rays, max_depth=args.depth,
                                        sampling=args.sampling))
     sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=3,

@@ -209,7 +209,9 @@ def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
     cases = [([tgt, str(behind)], "do not overlap"), ([str(tmp_path / "no.h5"), wall], "no.h5"),
              ([str(junk), wall], "junk.bin"), ([tgt, str(tmp_path / "no.ply")], "does not exist"),
              ([tgt, wall, "--iterations", "0"], "iterations"),
-             ([tgt, str(empty), "--denoise"], "no faces")]
+             ([tgt, str(empty), "--denoise"], "no faces"),
+             ([tgt, wall, "--min-rel-power", "-1"], "min_rel_power"),
+             ([tgt, wall, "--normals-smoothing", "nan"], "normals_smoothing")]
     for args, word in cases:
         out = tmp_path / "o"
         code = main(["fit", *args, "--rays", "500", "--out", str(out)])
@@ -231,3 +233,7 @@ def test_13_bench_reports_both_timings_and_rejects_bad_options(tmp_path, capsys)
     assert "unknown scene" in capsys.readouterr().err
     assert main(["bench", "--sionna-depth", "0"]) == EXIT_BAD_INPUT
     assert "--sionna-depth must be >= 1" in capsys.readouterr().err
+    assert main(["bench", "--sionna-samples", "0"]) == EXIT_BAD_INPUT
+    assert "--sionna-samples must be >= 1" in capsys.readouterr().err
+    assert main(["bench", "--min-rel-power", "1.5", "--max-triangles", "3000"]) == EXIT_BAD_INPUT
+    assert "min_rel_power" in capsys.readouterr().err
