@@ -29,7 +29,7 @@ def add_parser(sub) -> None:
                    help="denoise the LiDAR mesh first (as the benchmark table does)")
     p.add_argument("--sionna-samples", type=int, default=None,
                    help="Sionna samples per source (default: --rays)")
-    p.add_argument("--min-rel-power", type=float, default=1e-8,
+    p.add_argument("--min-rel-power", type=float, default=1e-6,
                    help="mmIR path pruning threshold (MMIRModel.min_rel_power)")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--max-triangles", type=int, default=50_000, help="LiDAR mesh budget")

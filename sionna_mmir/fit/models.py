@@ -40,9 +40,12 @@ class MMIRModel:
     solver_options    options of :class:`~sionna_mmir.paths.RadarPathSolver`
                       (``num_rays``, ``max_depth``, ``cone_angle_deg``, ...)
     min_rel_power     paths weaker than this x the strongest are left out of
-                      the ADC synthesis (default 1e-8, -80 dB: on the
-                      facet-sampled hallway at depth 3 it drops half of 2M
-                      paths holding 1.2e-5 of the power; 0 keeps all)
+                      the ADC synthesis (default 1e-6, -60 dB: on the
+                      facet-sampled hallway at depth 3 it keeps 261k of 2M
+                      paths, the ADC error is -27 dB, the RA map correlates
+                      0.9993 with the unpruned one and an iteration takes
+                      4 s instead of 13 s; 1e-8 keeps 980k at -50 dB; 0
+                      keeps all)
     normals_smoothing ``lambda`` of the Laplacian ("large steps")
                       parameterisation of the learned normals
                       (:mod:`~sionna_mmir.fit.smooth_param`; Nicolet et al.
@@ -55,7 +58,7 @@ class MMIRModel:
 
     def __init__(self, scene, radar=None, *, learn=("materials", "normals", "beam"),
                  tx_pattern=None, rx_pattern=None, solver_options: dict | None = None,
-                 min_rel_power: float = 1e-8, normals_smoothing: float = 0.0):
+                 min_rel_power: float = 1e-6, normals_smoothing: float = 0.0):
         from ..paths import RadarPathSolver
         from ..radio_devices import CosinePowerPattern
 

@@ -140,6 +140,7 @@ class SceneGeometry:
         """
         from ..errors import InputValueError
 
+        pending = []
         for name in self.names:
             obj = self.scene.mesh_objects[name]
             passed = obj.__dict__.setdefault("_validated", {})
@@ -150,8 +151,12 @@ class SceneGeometry:
                 used = obj._referenced = (obj.faces, np.unique(obj.faces))
             tokens["vertex_normals"] += (used[0],)          # the zero-normal check reads faces
             todo = [key for key, tok in tokens.items() if not _same(passed.get(key), tok)]
-            if not todo:
-                continue
+            if todo:
+                pending.append((name, passed, tokens, todo, used))
+        # one kernel for every tensor to check (e.g. each object's reparameterised
+        # materials), not one per object and tensor
+        dr.eval(*[tokens[key][0] for _, _, tokens, todo, _ in pending for key in todo])
+        for name, passed, tokens, todo, used in pending:
             arrays = {key: np.asarray(tokens[key][0]) for key in todo}
             for key in todo:
                 a = arrays[key]

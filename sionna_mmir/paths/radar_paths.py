@@ -104,12 +104,13 @@ class PathFactors:
         """Detached ``|c_p|^2 mean_t g_t^2 mean_r g_r^2`` per path, float64 ``[P]``
         (the path's mean power over the Tx-Rx pairs)."""
         T, R, P = self.shape
+        c_re, c_im, g_t, g_r = (dr.detach(x) for x in (self.c_re, self.c_im, self.g_t, self.g_r))
+        dr.eval(c_re, c_im, g_t, g_r)
 
-        def n(x):
-            return np.asarray(dr.detach(x), dtype=np.float64)
-        return (n(self.c_re) ** 2 + n(self.c_im) ** 2) \
-            * np.mean(n(self.g_t).reshape(T, P) ** 2, axis=0) \
-            * np.mean(n(self.g_r).reshape(R, P) ** 2, axis=0)
+        def msq(x, rows):          # mean square over the rows, float32 in, float64 out
+            a = np.asarray(x).reshape(rows, P)
+            return np.einsum("ip,ip->p", a, a, dtype=np.float64) / rows
+        return (msq(c_re, 1) + msq(c_im, 1)) * msq(g_t, T) * msq(g_r, R)
 
     def pruned(self, min_rel_power: float) -> "PathFactors":
         """The paths whose power (:meth:`path_powers`) exceeds ``min_rel_power``
