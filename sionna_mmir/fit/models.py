@@ -193,13 +193,14 @@ class MMIRModel:
         return paths.adc(self.radar, self.min_rel_power), handles
 
     def physical(self, z: dict) -> dict:
-        """Latents -> physical values (materials through the reparameterisation)."""
+        """Latents -> physical values (materials through the reparameterisation,
+        normals as unit vectors, through the Laplacian parameterisation if set)."""
         out = {}
         for k, v in z.items():
             out[k] = reparam.to_physical(v) if k.endswith(".materials") else np.asarray(v)
-            obj = k[:-len(".normals")] if k.endswith(".normals") else None
-            if obj in self._normal_params:
-                n = self._normal_params[obj].from_latent(v)
+            if k.endswith(".normals"):        # unit shading normals, as the renderer uses them
+                obj = k[:-len(".normals")]
+                n = self._normal_params[obj].from_latent(v) if obj in self._normal_params else out[k]
                 out[k] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         return out
 

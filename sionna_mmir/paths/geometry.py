@@ -155,7 +155,8 @@ class SceneGeometry:
                 pending.append((name, passed, tokens, todo, used))
         # one kernel for every tensor to check (e.g. each object's reparameterised
         # materials), not one per object and tensor
-        dr.eval(*[tokens[key][0] for _, _, tokens, todo, _ in pending for key in todo])
+        if pending:              # (dr.eval() without arguments would flush everything queued)
+            dr.eval(*[tokens[key][0] for _, _, tokens, todo, _ in pending for key in todo])
         for name, passed, tokens, todo, used in pending:
             arrays = {key: np.asarray(tokens[key][0]) for key in todo}
             for key in todo:
