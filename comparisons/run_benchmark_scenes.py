@@ -63,6 +63,8 @@ def main(argv=None) -> int:
                    help="mmIR path pruning threshold (MMIRModel.min_rel_power)")
     p.add_argument("--normals-smoothing", type=float, default=500.0,
                    help="lambda of the Laplacian parameterisation of learned normals")
+    p.add_argument("--materials-smoothing", type=float, default=0.0,
+                   help="lambda of the Laplacian parameterisation of the materials")
     p.add_argument("--no-denoise", action="store_true",
                    help="fit the raw LiDAR-like mesh (default: both models get it denoised "
                         "by sionna_mmir.scene.denoise_meshes)")
@@ -132,6 +134,7 @@ def _scene(name: str, args) -> int:
     mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
                    learn=tuple(args.learn.split(",")), min_rel_power=args.min_rel_power,
                    normals_smoothing=args.normals_smoothing,
+                   materials_smoothing=args.materials_smoothing,
                    solver_options=dict(num_rays=args.rays, max_depth=args.depth,
                                        sampling=args.sampling))
     sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=3,

@@ -211,7 +211,8 @@ def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
              ([tgt, wall, "--iterations", "0"], "iterations"),
              ([tgt, str(empty), "--denoise"], "no faces"),
              ([tgt, wall, "--min-rel-power", "-1"], "min_rel_power"),
-             ([tgt, wall, "--normals-smoothing", "nan"], "normals_smoothing")]
+             ([tgt, wall, "--normals-smoothing", "nan"], "normals_smoothing"),
+             ([tgt, wall, "--materials-smoothing", "-3"], "materials_smoothing")]
     for args, word in cases:
         out = tmp_path / "o"
         code = main(["fit", *args, "--rays", "500", "--out", str(out)])

@@ -54,6 +54,9 @@ def add_parsers(sub) -> None:
         p.add_argument("--normals-smoothing", type=float, default=0.0,
                        help="lambda of the Laplacian parameterisation of the learned normals "
                             "(0: per-vertex; sionna_mmir.fit.smooth_param)")
+        p.add_argument("--materials-smoothing", type=float, default=0.0,
+                       help="the same for the per-vertex materials (a spatial smoothness "
+                            "prior; 0: off)")
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--resume", action="store_true", help="continue from the checkpoint")
         p.add_argument("--overwrite", action="store_true", help="replace an existing report")
@@ -124,7 +127,8 @@ def _run(args, with_sionna: bool) -> int:
     ra_ref = target_ra(cap.frames, radar)
     mm = MMIRModel(scene, solver_options=dict(num_rays=args.rays, max_depth=args.depth,
                                               sampling=args.sampling),
-                   min_rel_power=args.min_rel_power, normals_smoothing=args.normals_smoothing)
+                   min_rel_power=args.min_rel_power, normals_smoothing=args.normals_smoothing,
+                   materials_smoothing=args.materials_smoothing)
     _check_overlap(mm, args.capture)
     models = [("mmIR", mm)]
     if with_sionna:

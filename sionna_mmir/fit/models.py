@@ -53,12 +53,16 @@ class MMIRModel:
                       so per-vertex noise in the steps is averaged over
                       ``~sqrt(lambda)`` edges while a whole surface can still
                       tilt (default 0: raw per-vertex normals)
+    materials_        the same for the materials' latents (a spatial
+    smoothing         smoothness prior on the six per-vertex parameters;
+                      default 0)
     ================  ========================================================
     """
 
     def __init__(self, scene, radar=None, *, learn=("materials", "normals", "beam"),
                  tx_pattern=None, rx_pattern=None, solver_options: dict | None = None,
-                 min_rel_power: float = 1e-6, normals_smoothing: float = 0.0):
+                 min_rel_power: float = 1e-6, normals_smoothing: float = 0.0,
+                 materials_smoothing: float = 0.0):
         from ..paths import RadarPathSolver
         from ..radio_devices import CosinePowerPattern
 
@@ -75,16 +79,18 @@ class MMIRModel:
         if not (np.isfinite(min_rel_power) and 0 <= min_rel_power < 1):
             raise ConfigError(f"MMIRModel: min_rel_power must be in [0, 1), got {min_rel_power!r}")
         self.min_rel_power = float(min_rel_power)
-        if not (np.isfinite(normals_smoothing) and normals_smoothing >= 0):
-            raise ConfigError(f"MMIRModel: normals_smoothing must be >= 0, got {normals_smoothing!r}")
-        self.normals_smoothing = float(normals_smoothing)
-        self._normal_params = {}
-        if "normals" in self.learn and self.normals_smoothing > 0:
-            from .smooth_param import LaplacianParam
+        #: latent key -> LaplacianParam (handles are the smoothed fields, see pullback)
+        self._smooth = {}
+        for what, lam in (("normals", normals_smoothing), ("materials", materials_smoothing)):
+            if not (np.isfinite(lam) and lam >= 0):
+                raise ConfigError(f"MMIRModel: {what}_smoothing must be >= 0, got {lam!r}")
+            setattr(self, f"{what}_smoothing", float(lam))
+            if what in self.learn and lam > 0:
+                from .smooth_param import LaplacianParam
 
-            for name, obj in scene.mesh_objects.items():
-                self._normal_params[name] = LaplacianParam(
-                    obj.faces, np.asarray(obj.vertex_normals).shape[0], self.normals_smoothing)
+                for name, obj in scene.mesh_objects.items():
+                    self._smooth[f"{name}.{what}"] = LaplacianParam(
+                        obj.faces, np.asarray(obj.vertex_normals).shape[0], float(lam))
         self.solver = RadarPathSolver()
         self.options = dict(num_rays=20_000, max_depth=2)
         self.options.update(solver_options or {})
@@ -96,10 +102,7 @@ class MMIRModel:
             if "materials" in self.learn:
                 z[f"{name}.materials"] = reparam.to_latent(np.array(obj.vertex_materials))
             if "normals" in self.learn:
-                nrm = np.array(obj.vertex_normals, dtype=np.float64)
-                if name in self._normal_params:
-                    nrm = self._normal_params[name].to_latent(nrm)
-                z[f"{name}.normals"] = nrm
+                z[f"{name}.normals"] = np.array(obj.vertex_normals, dtype=np.float64)
             if "positions" in self.learn:
                 z[f"{name}.positions"] = np.array(obj.vertex_positions, dtype=np.float64)
         if "beam" in self.learn:
@@ -109,6 +112,8 @@ class MMIRModel:
         if "pose" in self.learn:
             z["pose.position"] = np.array(self.scene.position, dtype=np.float64)
             z["pose.orientation"] = np.array(self.scene.orientation, dtype=np.float64)
+        for k, par in self._smooth.items():
+            z[k] = par.to_latent(z[k])
         return z
 
     def lr_scales(self) -> dict:
@@ -137,6 +142,8 @@ class MMIRModel:
         handles = {}
 
         def var(key, arr):
+            if key in self._smooth:       # the handle is the smoothed field; pullback() maps its grad
+                arr = self._smooth[key].from_latent(arr)
             a = np.ascontiguousarray(arr, dtype=np.float32)
             t = mi.TensorXf(mi.Float(a.ravel()), a.shape) if a.ndim > 1 else mi.Float(a)
             if grad:
@@ -152,10 +159,7 @@ class MMIRModel:
                 obj.vertex_materials = mi.TensorXf(reparam.to_physical_dr(t.array, n), (n, 6))
             k = f"{name}.normals"
             if k in z:
-                nrm = z[k]
-                if name in self._normal_params:       # handle = normals; pullback() maps its grad
-                    nrm = self._normal_params[name].from_latent(nrm)
-                obj.vertex_normals = var(k, nrm)
+                obj.vertex_normals = var(k, z[k])
             k = f"{name}.positions"
             if k in z:
                 obj.vertex_positions = var(k, z[k])
@@ -175,8 +179,7 @@ class MMIRModel:
         """Gradients w.r.t. the render handles -> gradients w.r.t. the latents
         (identity except for Laplacian-parameterised normals: ``A^-1 g``)."""
         out = dict(grads)
-        for name, par in self._normal_params.items():
-            k = f"{name}.normals"
+        for k, par in self._smooth.items():
             if k in out:
                 out[k] = par.pullback(out[k])
         return out
@@ -197,11 +200,10 @@ class MMIRModel:
         normals as unit vectors, through the Laplacian parameterisation if set)."""
         out = {}
         for k, v in z.items():
-            out[k] = reparam.to_physical(v) if k.endswith(".materials") else np.asarray(v)
+            v = self._smooth[k].from_latent(v) if k in self._smooth else np.asarray(v)
+            out[k] = reparam.to_physical(v) if k.endswith(".materials") else v
             if k.endswith(".normals"):        # unit shading normals, as the renderer uses them
-                obj = k[:-len(".normals")]
-                n = self._normal_params[obj].from_latent(v) if obj in self._normal_params else out[k]
-                out[k] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+                out[k] = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
         return out
 
 
