@@ -124,13 +124,26 @@ def test_06_model_latents_round_trip(plate_model):
     np.testing.assert_allclose(np.array(m.scene.mesh_objects["p"].vertex_normals), n0, atol=1e-6)
 
 
+def _ra_loss(m, tmap, z, grad=False):
+    """RA loss of ``m`` at latents ``z`` (seed 5); with ``grad`` the pulled-back
+    gradients w.r.t. the latents instead."""
+    import drjit as dr
+
+    from sionna_mmir.processing.drjit_ra import ra_loss_from_adc
+
+    adc, h = m.render(z, seed=5)
+    L = ra_loss_from_adc(adc, m.radar, tmap)
+    if not grad:
+        return float(np.asarray(dr.detach(L))[0])
+    dr.backward(L)
+    return m.pullback({k: np.asarray(dr.grad(v), dtype=np.float64).reshape(z[k].shape)
+                       for k, v in h.items()})
+
+
 def test_07_render_gradient_wrt_latents_matches_finite_differences(plate_model):
     """dL/du (handles' AD gradient, pulled back) vs central differences of the RA
     loss in u, along random directions (deterministic facet quadrature)."""
-    import drjit as dr
-
     from sionna_mmir.paths import to_numpy
-    from sionna_mmir.processing.drjit_ra import ra_loss_from_adc
     from sionna_mmir.processing.imaging import range_azimuth
 
     m = plate_model
@@ -144,13 +157,7 @@ def test_07_render_gradient_wrt_latents_matches_finite_differences(plate_model):
     tmap = range_azimuth(to_numpy(adc_t), radar)[0]
 
     def loss(z, grad=False):
-        adc, h = m.render(z, seed=5)
-        L = ra_loss_from_adc(adc, radar, tmap)
-        if not grad:
-            return float(np.asarray(dr.detach(L))[0])
-        dr.backward(L)
-        g = {k: np.asarray(dr.grad(v), dtype=np.float64).reshape(z[k].shape) for k, v in h.items()}
-        return m.pullback(g)
+        return _ra_loss(m, tmap, z, grad)
 
     g = loss(z0, grad=True)["p.normals"]
     assert np.abs(g).max() > 0
@@ -191,10 +198,7 @@ def test_08_fit_with_smoothed_normals_resumes(plate_model, tmp_path):
 def test_09_smoothed_materials_round_trip_and_gradient():
     """materials_smoothing: physical(latents()) is the scene's materials; the RA-loss
     gradient w.r.t. the smoothed material latents matches central differences."""
-    import drjit as dr
-
     from sionna_mmir.paths import to_numpy
-    from sionna_mmir.processing.drjit_ra import ra_loss_from_adc
     from sionna_mmir.processing.imaging import range_azimuth
 
     radar = dataclasses.replace(RadarConfig.awr1843(), num_samples=64)
@@ -212,13 +216,8 @@ def test_09_smoothed_materials_round_trip_and_gradient():
     tmap = range_azimuth(to_numpy(adc_t), radar)[0]
 
     def loss(z, grad=False):
-        adc, h = m.render(z, seed=5)
-        L = ra_loss_from_adc(adc, radar, tmap)
-        if not grad:
-            return float(np.asarray(dr.detach(L))[0])
-        dr.backward(L)
-        return m.pullback({kk: np.asarray(dr.grad(v), dtype=np.float64).reshape(z[kk].shape)
-                           for kk, v in h.items()})[k]
+        out = _ra_loss(m, tmap, z, grad)
+        return out[k] if grad else out
 
     g = loss(z0, grad=True)
     assert np.abs(g).max() > 0
