@@ -2,7 +2,7 @@
 
     .venv/bin/python comparisons/run_benchmark_scenes.py [--scenes hallway,lab] [--iterations N]
 
-(the defaults are the committed table's settings; ~50 min on 2 cores)
+(the defaults are the committed table's settings; ~25 min on 2 cores)
 
 For each benchmark scene (sionna_mmir.scenes): render the ground-truth capture
 (clean geometry, true spatially varying materials, depth 3, diffraction,
