@@ -210,6 +210,7 @@ def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
              ([str(junk), wall], "junk.bin"), ([tgt, str(tmp_path / "no.ply")], "does not exist"),
              ([tgt, wall, "--iterations", "0"], "iterations"),
              ([tgt, str(empty), "--denoise"], "no faces"),
+             ([tgt, str(empty), "--flat-shading"], "no faces"),
              ([tgt, wall, "--min-rel-power", "-1"], "min_rel_power"),
              ([tgt, wall, "--normals-smoothing", "nan"], "normals_smoothing"),
              ([tgt, wall, "--materials-smoothing", "-3"], "materials_smoothing")]

@@ -47,6 +47,9 @@ def add_parsers(sub) -> None:
         p.add_argument("--denoise", action="store_true",
                        help="denoise the meshes first (LiDAR scans; scene/denoise.py, "
                             "radius 3 median edge lengths); both models get the result")
+        p.add_argument("--flat-shading", action="store_true",
+                       help="give every face its own vertices and normal (after --denoise): no "
+                            "normals averaged across creases (sionna_mmir.scene.flat_shaded)")
         p.add_argument("--min-rel-power", type=float, default=1e-6,
                        help="leave paths weaker than this x the strongest out of the ADC "
                             "synthesis (1e-6: facet fits ~3x faster than at 1e-8, RA maps "
@@ -84,21 +87,32 @@ def _setup(args):
     mats = _named(args.material, "--material", str)
     if getattr(args, "denoise", False):
         names = _denoised(names)
+    if getattr(args, "flat_shading", False):
+        from ..scene import flat_shaded
+
+        names = flat_shaded(names if getattr(args, "denoise", False) else _read(names))
     scene = load_scene(names, materials=mats, radar=radar)
     return cap, radar, names, mats, scene
 
 
-def _denoised(paths: dict) -> dict:
-    """name -> denoised ``trimesh.Trimesh`` of validated mesh files."""
+def _read(paths: dict) -> dict:
+    """name -> ``trimesh.Trimesh`` of validated mesh files."""
     import trimesh
 
-    from ..scene import denoise_meshes, read_mesh
+    from ..scene import read_mesh
 
     meshes = {}
     for name, path in paths.items():
         data = read_mesh(path)
         meshes[name] = trimesh.Trimesh(data.vertices, data.faces, process=False)
-    return denoise_meshes(meshes, radius=None, crease_angle_deg=20.0)
+    return meshes
+
+
+def _denoised(paths: dict) -> dict:
+    """name -> denoised ``trimesh.Trimesh`` of validated mesh files."""
+    from ..scene import denoise_meshes
+
+    return denoise_meshes(_read(paths), radius=None, crease_angle_deg=20.0)
 
 
 def _posed(radar, args):
