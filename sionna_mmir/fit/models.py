@@ -90,7 +90,7 @@ class MMIRModel:
 
                 for name, obj in scene.mesh_objects.items():
                     self._smooth[f"{name}.{what}"] = LaplacianParam(
-                        obj.faces, np.asarray(obj.vertex_normals).shape[0], float(lam))
+                        obj.faces, obj.vertex_positions.shape[0], float(lam))
         self.solver = RadarPathSolver()
         self.options = dict(num_rays=20_000, max_depth=2)
         self.options.update(solver_options or {})

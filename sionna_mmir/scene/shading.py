@@ -14,7 +14,8 @@ three vertices per face (per-vertex materials become per face corner).
 mesh        ``trimesh.Trimesh`` or ``dict`` name -> ``trimesh.Trimesh``
 returns     the same kind: meshes with ``3 F`` vertices (face ``i`` uses
             ``3i, 3i+1, 3i+2``, same winding) and vertex normals equal to
-            their face's unit normal; degenerate faces (zero area) dropped
+            their face's unit normal; degenerate faces (area below
+            ``mesh_io.DEGENERATE_AREA_M2``, as ``read_mesh``) dropped
 ==========  ==================================================================
 """
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 import trimesh
 
 from ..errors import InputValueError
+from .mesh_io import DEGENERATE_AREA_M2
 
 
 def flat_shaded(mesh):
@@ -47,7 +49,7 @@ def _flat(mesh, name):
     tri = verts[faces]                                          # (F, 3, 3)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(cross, axis=1)
-    keep = norm > 1e-12 * max(1.0, float(np.abs(verts).max()) ** 2)
+    keep = 0.5 * norm > DEGENERATE_AREA_M2                      # read_mesh's threshold
     if not keep.any():
         raise InputValueError(f"flat_shaded: {name!r} has only degenerate faces")
     tri, n = tri[keep], cross[keep] / norm[keep, None]
