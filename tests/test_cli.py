@@ -239,3 +239,6 @@ def test_13_bench_reports_both_timings_and_rejects_bad_options(tmp_path, capsys)
     assert "--sionna-samples must be >= 1" in capsys.readouterr().err
     assert main(["bench", "--min-rel-power", "1.5", "--max-triangles", "3000"]) == EXIT_BAD_INPUT
     assert "min_rel_power" in capsys.readouterr().err
+    assert main(["bench", "--learn", "materials,colour"]) == EXIT_BAD_INPUT
+    assert "cannot learn ['colour']" in capsys.readouterr().err
+    assert res["learn"] == ["materials", "beam"]

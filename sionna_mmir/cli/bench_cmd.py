@@ -33,6 +33,9 @@ def add_parser(sub) -> None:
                    help="Sionna samples per source (default: --rays)")
     p.add_argument("--min-rel-power", type=float, default=1e-6,
                    help="mmIR path pruning threshold (MMIRModel.min_rel_power)")
+    p.add_argument("--learn", default="materials,beam",
+                   help="what mmIR learns, comma-separated (default: the benchmark table's "
+                        "fits, materials and beam patterns)")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--max-triangles", type=int, default=50_000, help="LiDAR mesh budget")
     p.add_argument("--json", default=None, help="write results here")
@@ -77,8 +80,14 @@ def cmd_bench(args) -> int:
     from ..scene import load_scene
     from ..scenes import SCENES, build_scene, lidarize_scene
 
+    from ..fit.models import LEARNABLE
+
     if args.scene not in SCENES:
         raise ConfigError(f"unknown scene {args.scene!r}; choose from {sorted(SCENES)}")
+    learn = tuple(x for x in args.learn.split(",") if x)
+    bad = sorted(set(learn) - set(LEARNABLE))
+    if not learn or bad:
+        raise ConfigError(f"--learn: cannot learn {bad or 'nothing'}; choose from {LEARNABLE}")
     samples = args.rays if args.sionna_samples is None else args.sionna_samples
     for opt, val in (("--rays", args.rays), ("--repeat", args.repeat), ("--depth", args.depth),
                      ("--sionna-depth", args.sionna_depth), ("--sionna-samples", samples)):
@@ -96,7 +105,7 @@ def cmd_bench(args) -> int:
 
         lidar = flat_shaded(lidar)
     mats = {k: spec.materials[k] for k in lidar}
-    mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
+    mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar), learn=learn,
                    solver_options=dict(num_rays=args.rays, max_depth=args.depth,
                                        sampling=args.sampling),
                    min_rel_power=args.min_rel_power)
@@ -108,7 +117,8 @@ def cmd_bench(args) -> int:
            "rays": args.rays, "sionna_samples": samples,
            "min_rel_power": args.min_rel_power, "radar": radar.name, "rounds": args.repeat,
            "sampling": args.sampling, "depth": args.depth, "sionna_depth": args.sionna_depth,
-           "denoise": bool(args.denoise), "flat_shading": bool(args.flat_shading)}
+           "denoise": bool(args.denoise), "flat_shading": bool(args.flat_shading),
+           "learn": list(learn)}
     med, ratio = _time_interleaved((mm, sio), target, args.repeat)
     out["mmir_s_per_it"], out["sionna_s_per_it"] = float(med[0]), float(med[1])
     out["ratio_mmir_over_sionna"] = ratio          # median of the per-round ratios

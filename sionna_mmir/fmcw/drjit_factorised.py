@@ -72,8 +72,8 @@ def _make_op():
         """Custom AD node: (c_re, c_im, g_t, tau_t, g_r, tau_r, rate) -> (adc_re, adc_im)."""
 
         def eval(self, c_re, c_im, g_t, tau_t, g_r, tau_r, rate, radar=None, shape=None,
-                 moving=False):
-            self.radar, self.shape3, self.moving = radar, shape, moving
+                 moving=False, delays=True):
+            self.radar, self.shape3, self.moving, self.delays = radar, shape, moving, delays
             x = _inputs_numpy(radar, shape, c_re, c_im, g_t, tau_t, g_r, tau_r,
                               rate if moving else None)
             self.synth = SYNTHESIS(radar, x)
@@ -91,12 +91,12 @@ def _make_op():
         def backward(self):
             g_re, g_im = self.grad_out()
             shape = self.radar.adc_shape
-            g = self.synth.vjp(_np(g_re, shape) + 1j * _np(g_im, shape))
+            g = self.synth.vjp(_np(g_re, shape) + 1j * _np(g_im, shape), delays=self.delays)
             self.set_grad_in("c_re", mi.Float(_f32(g["c"].real)))
             self.set_grad_in("c_im", mi.Float(_f32(g["c"].imag)))
-            for name in ("g_t", "tau_t", "g_r", "tau_r"):
+            for name in ("g_t", "g_r") + (("tau_t", "tau_r") if self.delays else ()):
                 self.set_grad_in(name, mi.Float(_f32(g[name])))
-            if self.moving:
+            if self.moving and self.delays:
                 self.set_grad_in("rate", mi.Float(_f32(g["tau_rate"])))
 
         def name(self):
@@ -152,5 +152,9 @@ def synthesize_adc_factorised_drjit(radar: RadarConfig, c_re, c_im, g_t, tau_t, 
     moving = rate is not None
     if not moving:
         args["rate"] = dr.zeros(mi.Float, P)
-    re, im = dr.custom(_OP, *(args[k] for k in _NAMES), radar=radar, shape=shape, moving=moving)
+    # delay gradients only when something upstream needs them (a fit of
+    # materials and beams does not: the VJP then runs one transform per pair)
+    delays = bool(dr.grad_enabled(args["tau_t"], args["tau_r"], args["rate"]))
+    re, im = dr.custom(_OP, *(args[k] for k in _NAMES), radar=radar, shape=shape, moving=moving,
+                       delays=delays)
     return DrAdc(mi.TensorXf(re, radar.adc_shape), mi.TensorXf(im, radar.adc_shape))

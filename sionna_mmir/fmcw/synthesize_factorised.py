@@ -127,14 +127,31 @@ def _split(K: int) -> tuple[int, int]:
     return int(math.ceil(K / inner)), inner
 
 
+#: elements per pass of :func:`_cis` (its float64 / float32 temporaries stay in cache)
+CIS_CHUNK = 1 << 15
+
+
 def _cis(cycles: np.ndarray) -> np.ndarray:
-    """``exp(j 2 pi cycles)`` as complex64; ``cycles`` reduced mod 1 in float64."""
-    frac = cycles - np.floor(cycles)          # [0, 1), faster than np.mod
-    ang = (2 * np.pi * frac).astype(np.float32)
-    out = np.empty(ang.shape, np.complex64)
-    out.real = np.cos(ang)
-    out.imag = np.sin(ang)
-    return out
+    """``exp(j 2 pi cycles)`` as complex64; ``cycles`` reduced mod 1 in float64.
+
+    Works through the array in :data:`CIS_CHUNK` pieces with reused buffers:
+    whole-array temporaries (tens of MB for the synthesiser's ``[rows, P]``
+    phases) cost more in fresh pages than the arithmetic (measured 2-5x).
+    """
+    flat = np.ascontiguousarray(cycles, dtype=np.float64).reshape(-1)
+    out = np.empty(flat.size, np.complex64)
+    parts = out.view(np.float32).reshape(-1, 2)               # [n, (re, im)]
+    n = min(CIS_CHUNK, flat.size)
+    frac, ang = np.empty(n), np.empty(n, np.float32)
+    for s in range(0, flat.size, CIS_CHUNK):
+        e = min(flat.size, s + CIS_CHUNK)
+        f, a = frac[:e - s], ang[:e - s]
+        np.floor(flat[s:e], out=f)
+        np.subtract(flat[s:e], f, out=f)                      # [0, 1), faster than np.mod
+        np.multiply(f, 2 * np.pi, out=a, casting="same_kind")
+        np.cos(a, out=parts[s:e, 0])
+        np.sin(a, out=parts[s:e, 1])
+    return out.reshape(np.shape(cycles))
 
 
 def linear_phasors(c0: np.ndarray, c1: np.ndarray, K: int, amp=None) -> np.ndarray:
@@ -276,13 +293,15 @@ class FactorisedSynthesis:
         Gk = np.conj(G).transpose(3, 0, 2, 1).reshape(self.K, self.T * self.L, self.R)
         return np.ascontiguousarray(Gk, dtype=np.complex64)
 
-    def vjp(self, G) -> dict:
+    def vjp(self, G, delays: bool = True) -> dict:
         """Gradients of a real loss for ``G = dL/d Re(s) + j dL/d Im(s)``.
 
         ``G`` is ``[T, R, num_chirps, K]``.  Returns a dict: ``c`` complex128
         ``[P]`` (``dL/d Re c + j dL/d Im c``), ``g_t``, ``tau_t`` ``[T, P]``,
         ``g_r``, ``tau_r`` ``[R, P]`` and ``tau_rate`` ``[P]`` (None when static),
-        float64; delay gradients per second.
+        float64; delay gradients per second.  ``delays=False``: the caller
+        needs no delay gradients; they are returned as zeros (this reference
+        computes them anyway, the NUFFT synthesiser skips the work).
         """
         T, R, P = self.T, self.R, self.P
         Gk = self._upstream(G)
@@ -292,6 +311,10 @@ class FactorisedSynthesis:
                    tau_rate=np.zeros(P) if self.moving else None)
         _in_groups(lambda group: [self._vjp_chunk(sl, Gk, W, out) for sl in group],
                    self._chunks(3), self.workers)
+        if not delays:
+            for name in ("tau_t", "tau_r", "tau_rate"):
+                if out[name] is not None:
+                    out[name][:] = 0.0
         return out
 
     def _vjp_chunk(self, sl, Gk, W, out):
