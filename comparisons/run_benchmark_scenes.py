@@ -65,9 +65,11 @@ def main(argv=None) -> int:
                    help="lambda of the Laplacian parameterisation of learned normals")
     p.add_argument("--materials-smoothing", type=float, default=0.0,
                    help="lambda of the Laplacian parameterisation of the materials")
-    p.add_argument("--no-flat", action="store_true",
-                   help="keep the scaffold's shared vertices (default: flat-shaded, "
-                        "sionna_mmir.scene.flat_shaded: no normals averaged across creases)")
+    p.add_argument("--shading", default="auto", choices=["auto", "flat", "shared"],
+                   help="shading normals of the scaffold: auto (sionna_mmir.scene.auto_shaded: "
+                        "curved objects crease-split, the others flat), flat (every face its "
+                        "own normal), shared (the scan's shared vertices)")
+    p.add_argument("--no-flat", action="store_true", help="same as --shading shared")
     p.add_argument("--no-denoise", action="store_true",
                    help="fit the raw LiDAR-like mesh (default: both models get it denoised "
                         "by sionna_mmir.scene.denoise_meshes)")
@@ -120,7 +122,7 @@ def _scene(name: str, args) -> int:
     from sionna_mmir.compare.report import save_side_figures, table_rows
     from sionna_mmir.fit import MMIRModel, SionnaModel, reparam
     from sionna_mmir.processing.imaging import range_azimuth
-    from sionna_mmir.scene import denoise_meshes, flat_shaded, load_scene
+    from sionna_mmir.scene import auto_shaded, denoise_meshes, flat_shaded, load_scene
     from sionna_mmir.scenes import build_scene, lidarize_scene, true_materials
 
     fig_dir = os.path.join(args.out, "figures")
@@ -133,8 +135,11 @@ def _scene(name: str, args) -> int:
     lidar = lidarize_scene(spec, seed=0, max_triangles=args.lidar_max_triangles)
     if not args.no_denoise:
         lidar = denoise_meshes(lidar, radius=None, crease_angle_deg=20.0)
-    if not args.no_flat:
+    shading = "shared" if args.no_flat else args.shading
+    if shading == "flat":
         lidar = flat_shaded(lidar)
+    elif shading == "auto":
+        lidar = auto_shaded(lidar)
     mats = {k: spec.materials[k] for k in lidar}
     mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
                    learn=tuple(args.learn.split(",")), min_rel_power=args.min_rel_power,

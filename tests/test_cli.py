@@ -241,4 +241,7 @@ def test_13_bench_reports_both_timings_and_rejects_bad_options(tmp_path, capsys)
     assert "min_rel_power" in capsys.readouterr().err
     assert main(["bench", "--learn", "materials,colour"]) == EXIT_BAD_INPUT
     assert "cannot learn ['colour']" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:                     # argparse: an unknown choice
+        main(["bench", "--shading", "round"])
+    assert e.value.code == EXIT_BAD_INPUT and "invalid choice" in capsys.readouterr().err
     assert res["learn"] == ["materials", "beam"]

@@ -27,8 +27,10 @@ def add_parser(sub) -> None:
                    help="mmIR path sampling (facets: the benchmark table's fits)")
     p.add_argument("--denoise", action="store_true",
                    help="denoise the LiDAR mesh first (as the benchmark table does)")
-    p.add_argument("--flat-shading", action="store_true",
-                   help="flat-shade the (denoised) mesh, as the benchmark table does")
+    p.add_argument("--shading", default="shared", choices=["shared", "flat", "auto"],
+                   help="shading normals of the (denoised) mesh: shared vertices as scanned, "
+                        "flat, or auto (sionna_mmir.scene.auto_shaded, the benchmark table's)")
+    p.add_argument("--flat-shading", action="store_true", help="same as --shading flat")
     p.add_argument("--sionna-samples", type=int, default=None,
                    help="Sionna samples per source (default: --rays)")
     p.add_argument("--min-rel-power", type=float, default=1e-6,
@@ -100,10 +102,11 @@ def cmd_bench(args) -> int:
         from ..scene import denoise_meshes
 
         lidar = denoise_meshes(lidar, radius=None, crease_angle_deg=20.0)
-    if args.flat_shading:
-        from ..scene import flat_shaded
+    shading = "flat" if args.flat_shading else args.shading
+    if shading != "shared":
+        from ..scene import auto_shaded, flat_shaded
 
-        lidar = flat_shaded(lidar)
+        lidar = (flat_shaded if shading == "flat" else auto_shaded)(lidar)
     mats = {k: spec.materials[k] for k in lidar}
     mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar), learn=learn,
                    solver_options=dict(num_rays=args.rays, max_depth=args.depth,
@@ -117,7 +120,7 @@ def cmd_bench(args) -> int:
            "rays": args.rays, "sionna_samples": samples,
            "min_rel_power": args.min_rel_power, "radar": radar.name, "rounds": args.repeat,
            "sampling": args.sampling, "depth": args.depth, "sionna_depth": args.sionna_depth,
-           "denoise": bool(args.denoise), "flat_shading": bool(args.flat_shading),
+           "denoise": bool(args.denoise), "shading": shading,
            "learn": list(learn)}
     med, ratio = _time_interleaved((mm, sio), target, args.repeat)
     out["mmir_s_per_it"], out["sionna_s_per_it"] = float(med[0]), float(med[1])

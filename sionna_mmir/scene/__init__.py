@@ -4,7 +4,8 @@
 ``scene``    :class:`RadarScene` (subclass of ``sionna.rt.Scene``) and
              :func:`load_scene`
 ``denoise``  MLS denoising of LiDAR-like meshes
-``shading``  :func:`flat_shaded` (no normals averaged across creases)
+``shading``  :func:`flat_shaded`, :func:`crease_shaded`, :func:`auto_shaded` (no normals
+             averaged across creases)
 
 Importing :mod:`sionna_mmir.scene.scene` initialises the Mitsuba backend;
 this package imports it lazily so that ``mesh_io`` stays NumPy-only.
@@ -15,13 +16,14 @@ import importlib
 
 from .denoise import denoise_mesh, denoise_meshes
 from .mesh_io import DEGENERATE_AREA_M2, TriMeshData, read_mesh, to_mitsuba_mesh
-from .shading import flat_shaded
+from .shading import auto_shaded, crease_shaded, flat_shaded
 
 _LAZY = {"RadarScene", "MeshObject", "load_scene", "DEFAULT_FREQUENCY_HZ",
          "ATTR_NORMAL", "ATTR_MAT0", "ATTR_MAT1"}
 
 __all__ = sorted(_LAZY | {"DEGENERATE_AREA_M2", "TriMeshData", "read_mesh", "to_mitsuba_mesh",
-                          "denoise_mesh", "denoise_meshes", "flat_shaded"})
+                          "auto_shaded", "crease_shaded", "denoise_mesh", "denoise_meshes",
+                          "flat_shaded"})
 
 
 def __getattr__(name):
