@@ -73,6 +73,9 @@ def main(argv=None) -> int:
     p.add_argument("--no-denoise", action="store_true",
                    help="fit the raw LiDAR-like mesh (default: both models get it denoised "
                         "by sionna_mmir.scene.denoise_meshes)")
+    p.add_argument("--no-planes", action="store_true",
+                   help="skip snapping the scaffold's planar regions onto fitted planes "
+                        "(sionna_mmir.scene.snap_planes; default: both models get it)")
     p.add_argument("--out", default=HERE)
     p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     p.add_argument("--worker-json", default=None, help=argparse.SUPPRESS)
@@ -122,7 +125,7 @@ def _scene(name: str, args) -> int:
     from sionna_mmir.compare.report import save_side_figures, table_rows
     from sionna_mmir.fit import MMIRModel, SionnaModel, reparam
     from sionna_mmir.processing.imaging import range_azimuth
-    from sionna_mmir.scene import auto_shaded, denoise_meshes, flat_shaded, load_scene
+    from sionna_mmir.scene import load_scene, prepare_scaffold
     from sionna_mmir.scenes import build_scene, lidarize_scene, true_materials
 
     fig_dir = os.path.join(args.out, "figures")
@@ -133,13 +136,8 @@ def _scene(name: str, args) -> int:
     radar = cap.radar
     ra_ref = target_ra(cap.frames, radar)
     lidar = lidarize_scene(spec, seed=0, max_triangles=args.lidar_max_triangles)
-    if not args.no_denoise:
-        lidar = denoise_meshes(lidar, radius=None, crease_angle_deg=20.0)
-    shading = "shared" if args.no_flat else args.shading
-    if shading == "flat":
-        lidar = flat_shaded(lidar)
-    elif shading == "auto":
-        lidar = auto_shaded(lidar)
+    lidar = prepare_scaffold(lidar, denoise=not args.no_denoise, planes=not args.no_planes,
+                             shading="shared" if args.no_flat else args.shading)
     mats = {k: spec.materials[k] for k in lidar}
     mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
                    learn=tuple(args.learn.split(",")), min_rel_power=args.min_rel_power,

@@ -211,6 +211,8 @@ def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
              ([tgt, wall, "--iterations", "0"], "iterations"),
              ([tgt, str(empty), "--denoise"], "no faces"),
              ([tgt, str(empty), "--flat-shading"], "no faces"),
+             ([tgt, str(empty), "--planes"], "no faces"),
+             ([tgt, str(empty), "--shading", "auto"], "no faces"),
              ([tgt, wall, "--min-rel-power", "-1"], "min_rel_power"),
              ([tgt, wall, "--normals-smoothing", "nan"], "normals_smoothing"),
              ([tgt, wall, "--materials-smoothing", "-3"], "materials_smoothing")]

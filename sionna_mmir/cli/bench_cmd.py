@@ -31,6 +31,9 @@ def add_parser(sub) -> None:
                    help="shading normals of the (denoised) mesh: shared vertices as scanned, "
                         "flat, or auto (sionna_mmir.scene.auto_shaded, the benchmark table's)")
     p.add_argument("--flat-shading", action="store_true", help="same as --shading flat")
+    p.add_argument("--planes", action="store_true",
+                   help="snap planar regions onto fitted planes after --denoise "
+                        "(sionna_mmir.scene.snap_planes, as the benchmark table does)")
     p.add_argument("--sionna-samples", type=int, default=None,
                    help="Sionna samples per source (default: --rays)")
     p.add_argument("--min-rel-power", type=float, default=1e-6,
@@ -79,7 +82,7 @@ def cmd_bench(args) -> int:
     from ..fit import MMIRModel, SionnaModel
     from ..processing.imaging import range_azimuth
     from ..paths.render import to_numpy
-    from ..scene import load_scene
+    from ..scene import load_scene, prepare_scaffold
     from ..scenes import SCENES, build_scene, lidarize_scene
 
     from ..fit.models import LEARNABLE
@@ -98,15 +101,8 @@ def cmd_bench(args) -> int:
     spec = build_scene(args.scene, seed=0)
     radar = scene_radar(spec)
     lidar = lidarize_scene(spec, seed=0, max_triangles=args.max_triangles)
-    if args.denoise:
-        from ..scene import denoise_meshes
-
-        lidar = denoise_meshes(lidar, radius=None, crease_angle_deg=20.0)
     shading = "flat" if args.flat_shading else args.shading
-    if shading != "shared":
-        from ..scene import auto_shaded, flat_shaded
-
-        lidar = (flat_shaded if shading == "flat" else auto_shaded)(lidar)
+    lidar = prepare_scaffold(lidar, denoise=args.denoise, planes=args.planes, shading=shading)
     mats = {k: spec.materials[k] for k in lidar}
     mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar), learn=learn,
                    solver_options=dict(num_rays=args.rays, max_depth=args.depth,
@@ -120,7 +116,7 @@ def cmd_bench(args) -> int:
            "rays": args.rays, "sionna_samples": samples,
            "min_rel_power": args.min_rel_power, "radar": radar.name, "rounds": args.repeat,
            "sampling": args.sampling, "depth": args.depth, "sionna_depth": args.sionna_depth,
-           "denoise": bool(args.denoise), "shading": shading,
+           "denoise": bool(args.denoise), "planes": bool(args.planes), "shading": shading,
            "learn": list(learn)}
     med, ratio = _time_interleaved((mm, sio), target, args.repeat)
     out["mmir_s_per_it"], out["sionna_s_per_it"] = float(med[0]), float(med[1])

@@ -47,9 +47,14 @@ def add_parsers(sub) -> None:
         p.add_argument("--denoise", action="store_true",
                        help="denoise the meshes first (LiDAR scans; scene/denoise.py, "
                             "radius 3 median edge lengths); both models get the result")
-        p.add_argument("--flat-shading", action="store_true",
-                       help="give every face its own vertices and normal (after --denoise): no "
-                            "normals averaged across creases (sionna_mmir.scene.flat_shaded)")
+        p.add_argument("--planes", action="store_true",
+                       help="snap planar regions onto fitted planes (after --denoise; "
+                            "sionna_mmir.scene.snap_planes)")
+        p.add_argument("--shading", default="shared", choices=["shared", "flat", "auto"],
+                       help="shading normals: the meshes' shared vertices, flat (every face "
+                            "its own normal), or auto (curved objects crease-split, the others "
+                            "flat; sionna_mmir.scene.auto_shaded)")
+        p.add_argument("--flat-shading", action="store_true", help="same as --shading flat")
         p.add_argument("--min-rel-power", type=float, default=1e-6,
                        help="leave paths weaker than this x the strongest out of the ADC "
                             "synthesis (1e-6: facet fits ~3x faster than at 1e-8, RA maps "
@@ -85,12 +90,12 @@ def _setup(args):
     for path in args.meshes:
         names[os.path.splitext(os.path.basename(path))[0].replace(".", "_")] = path
     mats = _named(args.material, "--material", str)
-    if getattr(args, "denoise", False):
-        names = _denoised(names)
-    if getattr(args, "flat_shading", False):
-        from ..scene import flat_shaded
+    shading = "flat" if getattr(args, "flat_shading", False) else getattr(args, "shading", "shared")
+    denoise, planes = getattr(args, "denoise", False), getattr(args, "planes", False)
+    if denoise or planes or shading != "shared":
+        from ..scene import prepare_scaffold
 
-        names = flat_shaded(names if getattr(args, "denoise", False) else _read(names))
+        names = prepare_scaffold(_read(names), denoise=denoise, planes=planes, shading=shading)
     scene = load_scene(names, materials=mats, radar=radar)
     return cap, radar, names, mats, scene
 
@@ -106,13 +111,6 @@ def _read(paths: dict) -> dict:
         data = read_mesh(path)
         meshes[name] = trimesh.Trimesh(data.vertices, data.faces, process=False)
     return meshes
-
-
-def _denoised(paths: dict) -> dict:
-    """name -> denoised ``trimesh.Trimesh`` of validated mesh files."""
-    from ..scene import denoise_meshes
-
-    return denoise_meshes(_read(paths), radius=None, crease_angle_deg=20.0)
 
 
 def _posed(radar, args):

@@ -4,6 +4,8 @@
 ``scene``    :class:`RadarScene` (subclass of ``sionna.rt.Scene``) and
              :func:`load_scene`
 ``denoise``  MLS denoising of LiDAR-like meshes
+``planes``   :func:`snap_planes` (planar regions onto fitted planes)
+``scaffold`` :func:`prepare_scaffold` (denoise -> planes -> shading)
 ``shading``  :func:`flat_shaded`, :func:`crease_shaded`, :func:`auto_shaded` (no normals
              averaged across creases)
 
@@ -15,6 +17,8 @@ from __future__ import annotations
 import importlib
 
 from .denoise import denoise_mesh, denoise_meshes
+from .planes import snap_planes
+from .scaffold import SHADINGS, prepare_scaffold
 from .mesh_io import DEGENERATE_AREA_M2, TriMeshData, read_mesh, to_mitsuba_mesh
 from .shading import auto_shaded, crease_shaded, flat_shaded
 
@@ -23,7 +27,7 @@ _LAZY = {"RadarScene", "MeshObject", "load_scene", "DEFAULT_FREQUENCY_HZ",
 
 __all__ = sorted(_LAZY | {"DEGENERATE_AREA_M2", "TriMeshData", "read_mesh", "to_mitsuba_mesh",
                           "auto_shaded", "crease_shaded", "denoise_mesh", "denoise_meshes",
-                          "flat_shaded"})
+                          "flat_shaded", "prepare_scaffold", "SHADINGS", "snap_planes"})
 
 
 def __getattr__(name):

@@ -128,6 +128,11 @@ def _creased(mesh, name, angle, planar):
                            process=False)
 
 
+#: an object with at least this share of curved area is curved
+#: (:func:`auto_shaded`, :func:`sionna_mmir.scene.prepare_scaffold`)
+MIN_CURVED = 0.1
+
+
 def curved_fraction(mesh, angle_deg: float = 20.0, planar_deg: float = 2.0) -> float:
     """Share of a mesh's area on *curved* faces: faces whose three vertex
     normals are within ``angle_deg`` of the face normal (no crease) but not
@@ -148,7 +153,7 @@ def curved_fraction(mesh, angle_deg: float = 20.0, planar_deg: float = 2.0) -> f
 
 
 def auto_shaded(meshes: dict, angle_deg: float = 20.0, planar_deg: float = 2.0,
-                min_curved: float = 0.1) -> dict:
+                min_curved: float = MIN_CURVED) -> dict:
     """Per object: :func:`crease_shaded` (``angle_deg``, ``planar_deg``) when at
     least ``min_curved`` of its area is curved (:func:`curved_fraction`: a
     pole, a bollard), else :func:`flat_shaded` (walls, boxes, kerbs: their
