@@ -15,6 +15,10 @@ scan, noise-free   the LiDAR-like scan with its range / tangential noise off
 scan               the LiDAR-like scan the fitters get, true materials
 scan, denoised     that scan after ``scene.denoise_meshes``, true materials
 denoised, nominal  the same with the nominal ITU materials (a fit's start)
+denoised, auto-    the denoised scan shaded per object (``scene.auto_shaded``;
+shaded             session 8's benchmark scaffold), true materials
+scaffold           the benchmark table's scaffold: ``scene.prepare_scaffold``
+                   (denoised, planes snapped, auto-shaded), true materials
 =================  ==========================================================
 
 Writes ``scaffold_ceiling.md`` / ``.csv`` beside this script.  A fit that
@@ -30,7 +34,8 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-ROWS = ("clean", "scan, noise-free", "scan", "scan, denoised", "denoised, nominal")
+ROWS = ("clean", "scan, noise-free", "scan", "scan, denoised", "denoised, nominal",
+        "denoised, auto-shaded", "scaffold")
 
 
 def _corr(spec, meshes, radar, ra_ref, true, depth):
@@ -55,7 +60,7 @@ def main(argv=None) -> int:
     import sionna_mmir  # noqa: F401
     from sionna_mmir.compare.ground_truth import render_ground_truth
     from sionna_mmir.compare.harness import target_ra
-    from sionna_mmir.scene import denoise_meshes
+    from sionna_mmir.scene import auto_shaded, denoise_meshes, prepare_scaffold
     from sionna_mmir.scenes import SCENES, build_scene, lidarize_scene
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
@@ -76,7 +81,9 @@ def main(argv=None) -> int:
         den = denoise_meshes(scan, radius=None, crease_angle_deg=20.0)
         geoms = {"clean": (spec.refined(args.gt_max_edge), True),
                  "scan, noise-free": (quiet, True), "scan": (scan, True),
-                 "scan, denoised": (den, True), "denoised, nominal": (den, False)}
+                 "scan, denoised": (den, True), "denoised, nominal": (den, False),
+                 "denoised, auto-shaded": (auto_shaded(den), True),
+                 "scaffold": (prepare_scaffold(scan), True)}
         table[name] = {k: _corr(spec, g, radar, ra_ref, t, args.depth) for k, (g, t) in geoms.items()}
         print(name, {k: round(v, 3) for k, v in table[name].items()}, flush=True)
         _write(table, args.out)
