@@ -59,8 +59,10 @@ def main(argv=None) -> int:
                    help="what mmIR learns (default: materials and beam patterns; the "
                         "denoised scaffold's normals are within ~0.1 deg and learning them "
                         "costs accuracy: materials,normals,beam in comparisons/with_normals/)")
-    p.add_argument("--min-rel-power", type=float, default=1e-6,
-                   help="mmIR path pruning threshold (MMIRModel.min_rel_power)")
+    p.add_argument("--min-rel-power", type=float, default=1e-5,
+                   help="mmIR path pruning threshold (MMIRModel.min_rel_power; -50 dB, 10 dB "
+                        "under the ground truth's noise floor: with the true materials the "
+                        "RA maps correlate 0.998-0.999 with the unpruned ones)")
     p.add_argument("--normals-smoothing", type=float, default=500.0,
                    help="lambda of the Laplacian parameterisation of learned normals")
     p.add_argument("--materials-smoothing", type=float, default=0.0,

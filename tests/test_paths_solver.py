@@ -209,7 +209,9 @@ def test_10_nan_and_unphysical_scene_tensors_raise():
 def test_11_bad_solver_options_raise():
     scene = load_scene({"p": _square([2, 0, 0], 0.5, subdiv=0)}, radar=RadarConfig.dense(1, 1))
     for kw in ({"num_rays": 0}, {"max_depth": 0}, {"seed": -1}, {"cone_angle_deg": 120},
-               {"velocities": {"nope": (1, 0, 0)}}):
+               {"velocities": {"nope": (1, 0, 0)}}, {"min_rel_power": -1e-3},
+               {"min_rel_power": 1.0}, {"min_rel_power": float("nan")},
+               {"min_rel_power": True}, {"min_rel_power": "1e-5"}):
         with pytest.raises(ConfigError):
             RadarPathSolver()(scene, **kw)
     with pytest.raises(ConfigError, match="no radar"):
@@ -392,3 +394,34 @@ def test_18_facet_quadrature_independent_of_mixed_facet_sizes():
     got = np.abs(_coherent_sum(p)[0, 0]) / (LAM / (4 * np.pi * 2 * R))
     ref = _po_plate_reference(R, a)
     assert abs(20 * np.log10(got / ref)) < 0.5, (got, ref)
+
+
+@pytest.mark.parametrize("sampling", ["facets", "random"])
+def test_19_solver_pruning_keeps_exactly_the_paths_above_the_threshold(sampling):
+    """``min_rel_power``: the pruned paths are the subset of the unpruned ones
+    whose power at the first Tx-Rx pair, ``|c|^2 g_t[0]^2 g_r[0]^2``, exceeds
+    the threshold x the strongest's (computed here from the unpruned paths'
+    factors), in the same order, with the same factors (1e-6); 0 keeps all."""
+    plates = {"near": _square([1.5, 0.3, 0.0], 0.3, subdiv=2),
+              "far": _square([4.0, -0.8, 0.2], 0.6, subdiv=3)}
+    radar = dataclasses.replace(RadarConfig.mmwcas(num_chirps=2), num_samples=64)
+    scene = load_scene(plates, materials={"near": "metal", "far": "concrete"}, radar=radar)
+    opts = dict(max_depth=2, sampling=sampling, num_rays=4000, seed=3)
+    full = RadarPathSolver()(scene, **opts)
+    same = RadarPathSolver()(scene, min_rel_power=0.0, **opts)
+    c, g_t, tau_t, g_r, tau_r, _ = full.factors.numpy()
+    np.testing.assert_array_equal(same.factors.numpy()[0], c)
+    power = np.abs(c) ** 2 * g_t[0] ** 2 * g_r[0] ** 2
+    # a threshold between two neighbouring powers about the median (0.1 % apart
+    # at least, clear of float32 rounding)
+    r = np.sort(power / power.max())
+    i = next(i for i in range(r.size // 2, r.size) if r[i] > 1.001 * r[i - 1])
+    th = float(np.sqrt(r[i] * r[i - 1]))
+    keep = np.flatnonzero(power > th * power.max())
+    assert 0 < keep.size < c.size
+    pruned = RadarPathSolver()(scene, min_rel_power=th, **opts)
+    got = pruned.factors.numpy()
+    assert got[0].shape == (keep.size,)
+    for mine, ref in zip(got[:5], (c, g_t, tau_t, g_r, tau_r)):
+        np.testing.assert_allclose(mine, ref[..., keep], rtol=1e-6, atol=0)
+    np.testing.assert_array_equal(pruned.depth, full.depth[keep])

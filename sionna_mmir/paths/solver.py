@@ -190,6 +190,9 @@ class RadarPathSolver(PathSolver):
     facet_fresnel        bound on the quadratic phase ``k D^2 / R`` [rad] of a
                          (sub-)facet in ``"facets"`` sampling (default 0.5)
     max_facet_split      most splits ``n`` per facet edge (default 64)
+    min_rel_power        drop paths weaker than this x the strongest (power
+                         at the first Tx-Rx pair) before the per-element legs
+                         are formed, in ``[0, 1)`` (default 0: keep all)
     triangle_average     integrate the physical-optics phase exactly over
                          each hit triangle (:mod:`.triangle_po`; variance
                          reduction, default on)
@@ -225,9 +228,14 @@ class RadarPathSolver(PathSolver):
                  check_inside: bool = True, samples=None, reciprocal: bool = True,
                  diffraction: bool = False, fsd_width: float | None = None,
                  triangle_average: bool = True, sampling: str = "random",
-                 facet_fresnel: float = 0.5, max_facet_split: int = 64) -> RadarPaths:
+                 facet_fresnel: float = 0.5, max_facet_split: int = 64,
+                 min_rel_power: float = 0.0) -> RadarPaths:
         radar = _radar_of(scene, radar)
         self._check_args(scene, num_rays, max_depth, seed, cone_angle_deg, velocities)
+        if isinstance(min_rel_power, bool) or not (
+                isinstance(min_rel_power, (int, float, np.floating))
+                and np.isfinite(min_rel_power) and 0.0 <= float(min_rel_power) < 1.0):
+            raise ConfigError(f"min_rel_power must be in [0, 1), got {min_rel_power!r}")
         geo = SceneGeometry(scene)
         geo.validate()
         if samples is not None:
@@ -515,7 +523,8 @@ class RadarPathSolver(PathSolver):
             it.valid = it.valid & v2
 
         paths = self._assemble(outs, radar, pose, geo, ptx, prx, tx_w, rx_w, x1, N, K,
-                               velocities is not None or radar_velocity is not None)
+                               velocities is not None or radar_velocity is not None,
+                               float(min_rel_power))
         paths.samples = samples if samples is not None else (geo.record, tape.values)
         return paths
 
@@ -686,6 +695,26 @@ class RadarPathSolver(PathSolver):
         r = r - dr.detach(dr.dot(v_radar, k0) + dr.dot(v_radar, -k_t))
         return r / SPEED_OF_LIGHT
 
+    def _strong(self, C_re, C_im, X, X1, chain_t, chain, tx_w, rx_w, ptx, prx, pose, P,
+                min_rel_power) -> np.ndarray:
+        """Indices (sorted) of the paths whose power at the first Tx-Rx pair,
+        ``|C|^2 g_t0^2 g_r0^2``, exceeds ``min_rel_power`` x the strongest's.
+
+        The proxy costs two ``[P]`` legs instead of the ``[T, P] + [R, P]``
+        the paths need; for an array a few cm wide at >= 1 m, element gains
+        and leg lengths differ from the first element's by a small fraction
+        of a dB, which only moves paths within that of the threshold
+        (:meth:`PathFactors.pruned` uses the mean over all pairs).
+        """
+        with dr.suspend_grad():
+            g_t, _ = self._leg(tx_w, dr.detach(X), dr.detach(chain_t), ptx, pose, 1, P)
+            g_r, _ = self._leg(rx_w, dr.detach(X1), dr.detach(chain), prx, pose, 1, P)
+            pw = (dr.square(dr.detach(C_re)) + dr.square(dr.detach(C_im))) \
+                * dr.square(g_t) * dr.square(g_r)
+            dr.eval(pw)
+        pw = np.asarray(pw, dtype=np.float64)
+        return np.flatnonzero(pw > min_rel_power * pw.max())
+
     @staticmethod
     def _leg(elements, X, chain, pattern, pose, n, P):
         """``(sqrt(G) / length, length)`` [n * P] of the element <-> ``X`` legs.
@@ -710,8 +739,14 @@ class RadarPathSolver(PathSolver):
                           depth=np.zeros(0, dtype=np.int32), num_candidates=N,
                           info={"hits": 0})
 
-    def _assemble(self, outs, radar, pose, geo, ptx, prx, tx_w, rx_w, x1, N, K, moving):
-        """Per-path terms and per-element legs as factorised :class:`RadarPaths`."""
+    def _assemble(self, outs, radar, pose, geo, ptx, prx, tx_w, rx_w, x1, N, K, moving,
+                  min_rel_power=0.0):
+        """Per-path terms and per-element legs as factorised :class:`RadarPaths`.
+
+        With ``min_rel_power > 0`` the paths weaker than that x the strongest
+        at the first Tx-Rx pair (:meth:`_strong`) are dropped *before* the
+        per-element legs (``[T, P]``, ``[R, P]``) are formed.
+        """
         T, R = radar.num_tx, radar.num_rx
         # keep only lanes that contribute (connected to the Tx): dead rays, failed
         # shadow rays and empty reciprocal twins are dropped before the per-element
@@ -750,6 +785,17 @@ class RadarPathSolver(PathSolver):
         X, X1 = cat3(2), cat3(3)           # Tx-leg and Rx-leg interaction points
         chain_t, chain = cat(4), cat(5)    # chain lengths on the Tx / Rx side
         rate = cat(6)
+        depth = np.concatenate([np.full(o[8], o[7], dtype=np.int32) for o in outs])
+        if min_rel_power > 0.0:
+            keep = self._strong(C_re, C_im, X, X1, chain_t, chain, tx_w, rx_w, ptx, prx,
+                                pose, P, min_rel_power)
+            if keep.size < P:
+                idx = mi.UInt32(keep.astype(np.uint32))
+                C_re, C_im = dr.gather(mi.Float, C_re, idx), dr.gather(mi.Float, C_im, idx)
+                X, X1 = _gather3(X, idx), _gather3(X1, idx)
+                chain_t, chain = dr.gather(mi.Float, chain_t, idx), dr.gather(mi.Float, chain, idx)
+                rate = dr.gather(mi.Float, rate, idx)
+                depth, P = depth[keep], int(keep.size)
         # per-Tx leg [T, P] and per-Rx leg [R, P]: sqrt(gain) / leg length, and lengths
         g_t, dt = self._leg(tx_w, X, chain_t, ptx, pose, T, P)
         g_r, L = self._leg(rx_w, X1, chain, prx, pose, R, P)
@@ -758,7 +804,6 @@ class RadarPathSolver(PathSolver):
         factors = PathFactors(c_re=C_re, c_im=-C_im, g_t=g_t, tau_t=dt / SPEED_OF_LIGHT,
                               g_r=g_r, tau_r=L / SPEED_OF_LIGHT, rate=rate if moving else None,
                               shape=(T, R, P))
-        depth = np.concatenate([np.full(o[8], o[7], dtype=np.int32) for o in outs])
         return RadarPaths.from_factors(factors, depth=depth, num_candidates=N, info={"hits": K})
 
 
