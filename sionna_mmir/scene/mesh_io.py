@@ -35,6 +35,24 @@ class TriMeshData:
     normals: np.ndarray
 
 
+def trimesh_arrays(mesh, name: str, where: str):
+    """``(faces int64 [F, 3], vertices float64 [V, 3])`` of a ``trimesh.Trimesh``
+    with at least one face and finite vertices; ``InputValueError`` naming
+    ``where`` (the calling function) and ``name`` (the object) otherwise."""
+    import trimesh
+
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InputValueError(f"{where}: {name!r} is a {type(mesh).__name__}, "
+                              "expected trimesh.Trimesh")
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    if len(faces) == 0:
+        raise InputValueError(f"{where}: {name!r} has no faces")
+    if not np.isfinite(verts).all():
+        raise InputValueError(f"{where}: {name!r} has NaN/Inf vertices")
+    return faces, verts
+
+
 def _triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     p0, p1, p2 = (vertices[faces[:, k]] for k in range(3))
     return 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)

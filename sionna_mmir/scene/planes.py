@@ -67,6 +67,7 @@ import numpy as np
 import trimesh
 
 from ..errors import InputValueError
+from .mesh_io import trimesh_arrays
 
 #: weight of the stay-put term of the vertex least squares (plane terms weigh
 #: 1 each): a vertex keeps mu / (1 + mu) of its offset from a single plane
@@ -104,15 +105,7 @@ def _check(angle_deg, distance, min_area):
 
 
 def _snap(mesh, name, cos_a, tol, amin):
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InputValueError(f"snap_planes: {name!r} is a {type(mesh).__name__}, "
-                              "expected trimesh.Trimesh")
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    verts = np.asarray(mesh.vertices, dtype=np.float64)
-    if len(faces) == 0:
-        raise InputValueError(f"snap_planes: {name!r} has no faces")
-    if not np.isfinite(verts).all():
-        raise InputValueError(f"snap_planes: {name!r} has NaN/Inf vertices")
+    faces, verts = trimesh_arrays(mesh, name, "snap_planes")
     label = _grow(verts, faces, mesh.face_adjacency, cos_a, tol)
     planes = _planes(verts, faces, label, amin, tol)
     label = _absorb(verts, faces, mesh.face_adjacency, label, planes, tol)

@@ -40,7 +40,7 @@ import numpy as np
 import trimesh
 
 from ..errors import InputValueError
-from .mesh_io import DEGENERATE_AREA_M2
+from .mesh_io import DEGENERATE_AREA_M2, trimesh_arrays
 
 
 def flat_shaded(mesh):
@@ -53,15 +53,7 @@ def flat_shaded(mesh):
 
 
 def _flat(mesh, name):
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InputValueError(f"flat_shaded: {name!r} is a {type(mesh).__name__}, "
-                              "expected trimesh.Trimesh")
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    verts = np.asarray(mesh.vertices, dtype=np.float64)
-    if len(faces) == 0:
-        raise InputValueError(f"flat_shaded: {name!r} has no faces")
-    if not np.isfinite(verts).all():
-        raise InputValueError(f"flat_shaded: {name!r} has NaN/Inf vertices")
+    faces, verts = trimesh_arrays(mesh, name, "flat_shaded")
     tri = verts[faces]                                          # (F, 3, 3)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(cross, axis=1)
