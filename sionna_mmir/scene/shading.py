@@ -159,12 +159,12 @@ def auto_shaded(meshes: dict, angle_deg: float = 20.0, planar_deg: float = 2.0,
         raise InputValueError(f"auto_shaded: min_curved must be in [0, 1], got {min_curved!r}")
     out = {}
     for name, m in meshes.items():
-        flat = _flat(m, name)                                   # validates
+        trimesh_arrays(m, name, "auto_shaded")                  # validates
         frac = curved_fraction(m, angle_deg, planar_deg)
         if frac >= float(min_curved):
             out[name] = crease_shaded(m, angle_deg, planar_deg)
             out[name].metadata["shading"] = f"crease ({frac:.2f} curved)"
         else:
-            out[name] = flat
+            out[name] = _flat(m, name)
             out[name].metadata["shading"] = f"flat ({frac:.2f} curved)"
     return out
