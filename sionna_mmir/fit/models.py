@@ -179,7 +179,8 @@ class MMIRModel:
 
     def pullback(self, grads: dict) -> dict:
         """Gradients w.r.t. the render handles -> gradients w.r.t. the latents
-        (identity except for Laplacian-parameterised normals: ``A^-1 g``)."""
+        (identity except for Laplacian-parameterised normals or materials:
+        ``A^-1 g``)."""
         out = dict(grads)
         for k, par in self._smooth.items():
             if k in out:

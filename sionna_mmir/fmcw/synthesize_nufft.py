@@ -177,9 +177,12 @@ class NufftSynthesis(FactorisedSynthesis):
         nv = 2 if delays else 1                                   # transforms per pair
 
         def run(items, plan):
+            # delay accumulators only when they are formed (zeros added once below)
             acc = dict(cg=np.zeros(P, np.complex128), g_t=np.zeros((T, P)),
-                       tau_t=np.zeros((T, P)), g_r=np.zeros((R, P)), tau_r=np.zeros((R, P)),
-                       tau_rate=np.zeros(P) if self.moving else None)
+                       g_r=np.zeros((R, P)))
+            if delays:
+                acc.update(tau_t=np.zeros((T, P)), tau_r=np.zeros((R, P)),
+                           tau_rate=np.zeros(P) if self.moving else None)
             F = np.empty((nv, K), np.complex64)
             pts_buf = np.empty((R, BLOCK_PATHS), np.float32)
             U_buf = np.empty((R, nv, BLOCK_PATHS), np.complex64)
@@ -225,5 +228,8 @@ class NufftSynthesis(FactorisedSynthesis):
             for k, v in p.items():
                 if v is not None:
                     out[k] += v
+        if not delays:
+            out.update(tau_t=np.zeros((T, P)), tau_r=np.zeros((R, P)),
+                       tau_rate=np.zeros(P) if self.moving else None)
         out["c"] = np.conj(out.pop("cg"))
         return out

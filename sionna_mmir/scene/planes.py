@@ -106,8 +106,9 @@ def _check(angle_deg, distance, min_area):
 
 def _snap(mesh, name, cos_a, tol, amin):
     faces, verts = trimesh_arrays(mesh, name, "snap_planes")
-    label = _grow(verts, faces, mesh.face_adjacency, cos_a, tol)
-    planes = _planes(verts, faces, label, amin, tol)
+    geom = _face_geometry(verts, faces)
+    label = _grow(verts, faces, geom, mesh.face_adjacency, cos_a, tol)
+    planes = _planes(verts, faces, geom[1], label, amin, tol)
     label = _absorb(verts, faces, mesh.face_adjacency, label, planes, tol)
     new = _project(verts, faces, label, planes, tol)
     out = trimesh.Trimesh(new, faces.copy(), process=False)
@@ -125,10 +126,11 @@ def _face_geometry(verts, faces):
     return n, 0.5 * norm, tri.mean(axis=1)
 
 
-def _grow(verts, faces, adjacency, cos_a, tol) -> np.ndarray:
-    """Region label per face (``-1``: degenerate face, never assigned)."""
+def _grow(verts, faces, geom, adjacency, cos_a, tol) -> np.ndarray:
+    """Region label per face (``-2``: degenerate face, never assigned);
+    ``geom``: :func:`_face_geometry`."""
     F = len(faces)
-    n, area, cen = _face_geometry(verts, faces)
+    n, area, cen = geom
     adjacency = np.asarray(adjacency, dtype=np.int64).reshape(-1, 2)
     # neighbour lists (CSR) and roughness = largest angle to a neighbour
     src = np.concatenate([adjacency[:, 0], adjacency[:, 1]])
@@ -178,9 +180,8 @@ def _grow(verts, faces, adjacency, cos_a, tol) -> np.ndarray:
     return label
 
 
-def _planes(verts, faces, label, amin, tol) -> dict:
+def _planes(verts, faces, area, label, amin, tol) -> dict:
     """region -> (unit normal, offset, area) of the regions that are planes."""
-    _, area, _ = _face_geometry(verts, faces)
     ok = label >= 0
     sums = np.bincount(label[ok], weights=area[ok])
     out = {}
@@ -232,7 +233,7 @@ def _project(verts, faces, label, planes, tol) -> np.ndarray:
     is_plane = np.zeros(label.max() + 2, dtype=bool)
     ids = np.fromiter(planes, dtype=np.int64)
     is_plane[ids] = True
-    lab = np.where(label >= 0, label, -1)
+    lab = np.where(label >= 0, label, -1)          # -1: is_plane's last entry, always False
     keep = is_plane[lab]
     pairs = np.unique(np.stack([faces[keep].ravel(), np.repeat(lab[keep], 3)], axis=1), axis=0)
     if not len(pairs):
