@@ -244,15 +244,17 @@ def test_14_free_space_diffraction_redirects_a_small_power_fraction(monkeypatch)
     """Rays hitting near a plate's edges are diffracted (FSD) and continue past it."""
     import drjit as dr
 
+    from sionna_mmir.paths.transport import continuation
+
     counts = []
-    orig = RadarPathSolver._diffract
+    orig = continuation.diffract
 
     def spy(*a, **k):
         mask, wo = orig(*a, **k)
         counts.append(int(dr.count(mask)[0]))
         return mask, wo
 
-    monkeypatch.setattr(RadarPathSolver, "_diffract", staticmethod(spy))
+    monkeypatch.setattr(continuation, "diffract", spy)
     scene = load_scene({"plate": _square([2, 0, 0], 0.4), "wall": _square([4, 0, 0], 3.0)},
                        materials={"plate": "metal", "wall": "concrete"},
                        radar=RadarConfig.awr1843())

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .solver import RadarPathSolver, _radar_of
+from .solver import RadarPathSolver, radar_of
 
 
 def render(scene, radar=None, *, solver: RadarPathSolver | None = None, return_paths: bool = False,
@@ -29,7 +29,7 @@ def render(scene, radar=None, *, solver: RadarPathSolver | None = None, return_p
 
     ``to_numpy(adc)`` converts the result to complex64.
     """
-    radar = _radar_of(scene, radar)
+    radar = radar_of(scene, radar)
     paths = (solver or RadarPathSolver())(scene, radar, **options)
     adc = paths.adc(radar)
     return (adc, paths) if return_paths else adc
