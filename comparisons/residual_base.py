@@ -21,10 +21,11 @@ CAPTURES = ("corner_4m7_slope79.mat", "corner_6m1_slope79.mat")
 
 def fit_corner(cap, iterations: int, rays: int = 6000):
     """mmIR fit of the corner scene to ``cap``; returns (render ADC [T,R,C,N], SideResult)."""
-    from sionna_mmir.cli.commands import strongest_return
-    from sionna_mmir.cli.demo import refine_point_target
-    from sionna_mmir.cli.demo_fit import corner_scene_meshes
+    from sionna_mmir.compare.corner_scene import corner_scene_meshes
     from sionna_mmir.compare.harness import run_side
+    from sionna_mmir.fmcw.targets import refine_point_target
+    from sionna_mmir.paths.options import SolverOptions
+    from sionna_mmir.processing.detection import strongest_return
     from sionna_mmir.fit import MMIRModel
     from sionna_mmir.paths.render import to_numpy
     from sionna_mmir.processing.imaging import range_azimuth
@@ -40,7 +41,8 @@ def fit_corner(cap, iterations: int, rays: int = 6000):
     cone = min(abs(a_deg) + 6.0, 90.0)
     mm = MMIRModel(load_scene(meshes, materials={"corner": "metal", "floor": "concrete"},
                               radar=radar),
-                   solver_options=dict(num_rays=rays, max_depth=3, cone_angle_deg=cone))
+                   solver_options=SolverOptions.fit(num_rays=rays, max_depth=3,
+                                                    cone_angle_deg=cone))
     side = run_side("mmIR", mm, ra, cap.adc, iterations=iterations, lr=0.05, progress=False)
     renders = [to_numpy(mm.render(side.extra["latents"], seed=s)[0]) for s in (9001, 9002)]
     return np.mean(renders, axis=0), side
@@ -49,7 +51,7 @@ def fit_corner(cap, iterations: int, rays: int = 6000):
 def main(argv=None) -> int:
     from sionna_mmir.captures.capture import Capture
     from sionna_mmir.captures.loader import load_capture
-    from sionna_mmir.cli.demo import find_measured_dir
+    from sionna_mmir.captures.measured import find_measured_dir
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--iterations", type=int, default=10)

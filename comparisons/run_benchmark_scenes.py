@@ -4,7 +4,7 @@
 
 (the defaults are the committed table's settings; ~25 min on 2 cores)
 
-For each benchmark scene (sionna_mmir.scenes): render the ground-truth capture
+For each benchmark scene (sionna_mmir.benchmark_scenes): render the ground-truth capture
 (clean geometry, true spatially varying materials, depth 3, diffraction,
 receiver noise; facet quadrature), build the LiDAR-like mesh the fitters get
 (denoised first, the same mesh for both), fit mmIR and the
@@ -26,8 +26,11 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 
 def main(argv=None) -> int:
+    from sionna_mmir.benchmark_scenes import SCENES
     from sionna_mmir.compare.report import write_table
-    from sionna_mmir.scenes import SCENES
+    from sionna_mmir.paths.options import SolverOptions
+
+    preset = SolverOptions.benchmark()
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--scenes", default=",".join(SCENES))
@@ -44,7 +47,7 @@ def main(argv=None) -> int:
     p.add_argument("--gt-rays", type=int, default=100_000)
     p.add_argument("--gt-frames", type=int, default=1,
                    help="ground-truth frames (facets: they differ only in receiver noise)")
-    p.add_argument("--sampling", default="facets", choices=["random", "facets"],
+    p.add_argument("--sampling", default=preset.sampling, choices=["random", "facets"],
                    help="mmIR ray sampling for the fit (facets: deterministic per-facet "
                         "quadrature)")
     p.add_argument("--gt-sampling", default="facets", choices=["random", "facets"],
@@ -54,13 +57,13 @@ def main(argv=None) -> int:
                    help="ground-truth mesh refinement [m] (material variation; facets "
                         "are split further by the quadrature)")
     p.add_argument("--lidar-max-triangles", type=int, default=50_000)
-    p.add_argument("--depth", type=int, default=3, help="mmIR max depth")
+    p.add_argument("--depth", type=int, default=preset.max_depth, help="mmIR max depth")
     p.add_argument("--learn", default="materials,beam",
                    help="what mmIR learns (default: materials and beam patterns; the "
                         "denoised scaffold's normals are within ~0.1 deg and learning them "
                         "costs accuracy: materials,normals,beam in comparisons/with_normals/)")
-    p.add_argument("--min-rel-power", type=float, default=1e-5,
-                   help="mmIR path pruning threshold (MMIRModel.min_rel_power; -50 dB, 10 dB "
+    p.add_argument("--min-rel-power", type=float, default=preset.min_rel_power,
+                   help="mmIR path pruning threshold (SolverOptions.min_rel_power; -50 dB, 10 dB "
                         "under the ground truth's noise floor: with the true materials the "
                         "RA maps correlate 0.998-0.999 with the unpruned ones)")
     p.add_argument("--normals-smoothing", type=float, default=500.0,
@@ -68,16 +71,16 @@ def main(argv=None) -> int:
     p.add_argument("--materials-smoothing", type=float, default=0.0,
                    help="lambda of the Laplacian parameterisation of the materials")
     p.add_argument("--shading", default="auto", choices=["auto", "flat", "shared"],
-                   help="shading normals of the scaffold: auto (sionna_mmir.scene.auto_shaded: "
+                   help="shading normals of the scaffold: auto (sionna_mmir.scaffold.auto_shaded: "
                         "curved objects crease-split, the others flat), flat (every face its "
                         "own normal), shared (the scan's shared vertices)")
     p.add_argument("--no-flat", action="store_true", help="same as --shading shared")
     p.add_argument("--no-denoise", action="store_true",
                    help="fit the raw LiDAR-like mesh (default: both models get it denoised "
-                        "by sionna_mmir.scene.denoise_meshes)")
+                        "by sionna_mmir.scaffold.denoise_meshes)")
     p.add_argument("--no-planes", action="store_true",
                    help="skip snapping the scaffold's planar regions onto fitted planes "
-                        "(sionna_mmir.scene.snap_planes; default: both models get it)")
+                        "(sionna_mmir.scaffold.snap_planes; default: both models get it)")
     p.add_argument("--out", default=HERE)
     p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     p.add_argument("--worker-json", default=None, help=argparse.SUPPRESS)
@@ -127,8 +130,10 @@ def _scene(name: str, args) -> int:
     from sionna_mmir.compare.report import save_side_figures, table_rows
     from sionna_mmir.fit import MMIRModel, SionnaModel, reparam
     from sionna_mmir.processing.imaging import range_azimuth
-    from sionna_mmir.scene import load_scene, prepare_scaffold
-    from sionna_mmir.scenes import build_scene, lidarize_scene, true_materials
+    from sionna_mmir.scaffold import prepare_scaffold
+    from sionna_mmir.scene import load_scene
+    from sionna_mmir.benchmark_scenes import build_scene, lidarize_scene, true_materials
+    from sionna_mmir.paths.options import SolverOptions
 
     fig_dir = os.path.join(args.out, "figures")
     t0 = time.time()
@@ -142,11 +147,12 @@ def _scene(name: str, args) -> int:
                              shading="shared" if args.no_flat else args.shading)
     mats = {k: spec.materials[k] for k in lidar}
     mm = MMIRModel(load_scene(lidar, materials=mats, radar=radar),
-                   learn=tuple(args.learn.split(",")), min_rel_power=args.min_rel_power,
+                   learn=tuple(args.learn.split(",")),
                    normals_smoothing=args.normals_smoothing,
                    materials_smoothing=args.materials_smoothing,
-                   solver_options=dict(num_rays=args.rays, max_depth=args.depth,
-                                       sampling=args.sampling))
+                   solver_options=SolverOptions.benchmark(
+                       num_rays=args.rays, max_depth=args.depth, sampling=args.sampling,
+                       min_rel_power=args.min_rel_power))
     sio = SionnaModel(SionnaBaseline(lidar, mats, radar, max_depth=3,
                                      samples_per_src=args.sionna_samples))
     initial = {obj: np.array(m.vertex_materials, dtype=np.float64)

@@ -46,9 +46,10 @@ def _self_calibrated(cap, corner_range):
 
 def main(argv=None) -> int:
     from sionna_mmir.captures.loader import load_capture
-    from sionna_mmir.cli.commands import strongest_return
-    from sionna_mmir.cli.demo import find_measured_dir, refine_point_target
-    from sionna_mmir.cli.demo_fit import fit_stage
+    from sionna_mmir.captures.measured import find_measured_dir
+    from sionna_mmir.compare.corner_scene import fit_corner_scene
+    from sionna_mmir.fmcw.targets import refine_point_target
+    from sionna_mmir.processing.detection import strongest_return
     from sionna_mmir.compare.report import save_side_figures, table_rows, write_table
     from sionna_mmir.processing.imaging import range_azimuth
     from sionna_mmir.processing.virtual_array import VirtualArray
@@ -78,7 +79,7 @@ def main(argv=None) -> int:
         if args.calibration == "self":
             cap = _self_calibrated(cap, r)          # gated at the detected corner
             ra, ranges, az, r, a_deg = detect(cap)
-        sides = fit_stage(cap, ra, r, np.radians(a_deg), centre, iterations=args.iterations,
+        sides = fit_corner_scene(cap, ra, r, np.radians(a_deg), centre, iterations=args.iterations,
                           progress=False)
         rows += table_rows(name, sides)
         for k, v in sides.items():

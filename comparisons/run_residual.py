@@ -29,7 +29,7 @@ MOVER = "moving_target_500frames.bin"
 
 
 def _diagnose(y, base, radar, frame_period=0.0, max_rounds=6):
-    from sionna_mmir.cli.residual_cmd import candidate_effects
+    from sionna_mmir.effects.library import candidate_effects
     from sionna_mmir.effects import EffectContext, EffectModel
     from sionna_mmir.residual import diagnose
 
@@ -106,7 +106,7 @@ def _table(rows):
 
 
 def main(argv=None) -> int:
-    from sionna_mmir.cli.demo import find_measured_dir
+    from sionna_mmir.captures.measured import find_measured_dir
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--base", default="/tmp/sionna_mmir_residual_base")

@@ -45,7 +45,7 @@ def _corr(spec, meshes, radar, ra_ref, true, depth):
     from sionna_mmir.paths import render, to_numpy
     from sionna_mmir.processing.imaging import range_azimuth
     from sionna_mmir.scene import load_scene
-    from sionna_mmir.scenes import true_materials
+    from sionna_mmir.benchmark_scenes import true_materials
 
     scene = load_scene(meshes, materials={k: spec.materials[k] for k in meshes}, radar=radar)
     if true:
@@ -60,8 +60,8 @@ def main(argv=None) -> int:
     import sionna_mmir  # noqa: F401
     from sionna_mmir.compare.ground_truth import render_ground_truth
     from sionna_mmir.compare.harness import target_ra
-    from sionna_mmir.scene import auto_shaded, denoise_meshes, prepare_scaffold
-    from sionna_mmir.scenes import SCENES, build_scene, lidarize_scene
+    from sionna_mmir.scaffold import auto_shaded, denoise_meshes, prepare_scaffold
+    from sionna_mmir.benchmark_scenes import SCENES, build_scene, lidarize_scene
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--scenes", default=",".join(SCENES))

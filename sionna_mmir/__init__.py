@@ -4,6 +4,7 @@ Signal path and where each stage lives::
 
     radar/           RadarConfig: waveform, antenna layout, pose
     scene/           RadarScene (a sionna.rt.Scene), meshes, diffracting edges
+    scaffold/        LiDAR mesh repair: denoising, plane snapping, shading
     radio_materials/ ITU-R P.2040 table, Fresnel / slab coefficients
     radio_devices/   learnable element beam patterns
     bsdf/            mmIR BSDF lobes (GGX, vMF, Lambertian) and FSD diffraction
@@ -44,6 +45,9 @@ _LAZY = {
     "RadarPathSolver": ("sionna_mmir.paths.solver", "RadarPathSolver"),
     "RadarPaths": ("sionna_mmir.paths.radar_paths", "RadarPaths"),
     "render": ("sionna_mmir.paths.render", "render"),
+    "render_capture": ("sionna_mmir.paths.render", "render_capture"),
+    "SolverOptions": ("sionna_mmir.paths.options", "SolverOptions"),
+    "ScaffoldOptions": ("sionna_mmir.scaffold.prepare", "ScaffoldOptions"),
 }
 
 __all__ = sorted(_LAZY)

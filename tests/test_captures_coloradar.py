@@ -29,7 +29,7 @@ def calib(measured_dir):
 def _cascade(calib, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ColoRadarRepairWarning)
-        return RadarConfig.from_coloradar(calib, "cascade", **kw)
+        return read_coloradar_config(calib, "cascade", **kw)
 
 
 def _table(path):
@@ -55,7 +55,7 @@ def _copy_calib(calib, tmp_path):
 @pytest.mark.measured
 def test_01_cascade_config_repaired(calib):
     with pytest.warns(ColoRadarRepairWarning, match="adc_start_time"):
-        r = RadarConfig.from_coloradar(calib, "cascade")
+        r = read_coloradar_config(calib, "cascade")
     assert (r.num_tx, r.num_rx, r.num_samples, r.num_chirps) == (12, 16, 256, 16)
     assert r.slope == pytest.approx(79e12, rel=1e-6)
     assert r.sample_rate == 8e6
@@ -68,7 +68,7 @@ def test_01_cascade_config_repaired(calib):
     # the same through the function the RadarConfig classmethod calls
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ColoRadarRepairWarning)
-        assert read_coloradar_config(RadarConfig, calib, "cascade", num_chirps=1) == r.replace(
+        assert read_coloradar_config(calib, "cascade", num_chirps=1) == r.replace(
             num_chirps=1)
 
 
@@ -76,7 +76,7 @@ def test_01_cascade_config_repaired(calib):
 def test_02_single_chip_config(calib):
     with warnings.catch_warnings():
         warnings.simplefilter("error", ColoRadarRepairWarning)     # nothing to repair here
-        r = RadarConfig.from_coloradar(calib, "single_chip")
+        r = read_coloradar_config(calib, "single_chip")
     assert (r.num_tx, r.num_rx) == (3, 4)
     assert r.num_samples == 128 and r.num_chirps == 128
     assert r.adc_start_time + r.num_samples / r.sample_rate <= r.ramp_end_time
@@ -242,36 +242,36 @@ def test_11_config_errors(calib, tmp_path):
 
     wf.write_text(good.replace("frequency_slope", "#frequency_slope"))
     with pytest.raises(ConfigError, match="frequency_slope") as e:
-        RadarConfig.from_coloradar(cal, "cascade")
+        read_coloradar_config(cal, "cascade")
     assert str(wf) in str(e.value) and "missing" in str(e.value)
 
     wf.write_text(good + "tx_power 12\n")
     with pytest.raises(ConfigError, match="unknown key 'tx_power'") as e:
-        RadarConfig.from_coloradar(cal, "cascade")
+        read_coloradar_config(cal, "cascade")
     assert f"{wf}:{len(good.splitlines()) + 1}" in str(e.value)
 
     wf.write_text(good.replace("idle_time 4.99999987369e-06", "idle_time 5e-6 us"))
     with pytest.raises(ConfigError, match="malformed") as e:
-        RadarConfig.from_coloradar(cal, "cascade")
+        read_coloradar_config(cal, "cascade")
     assert f"{wf}:7" in str(e.value)
 
     wf.write_text(good.replace("adc_start_time 6.0", "adc_start_time six"))
     with pytest.raises(ConfigError, match="adc_start_time"):
-        RadarConfig.from_coloradar(cal, "cascade")
+        read_coloradar_config(cal, "cascade")
 
     wf.write_text(good.replace("ramp_end_time 3.99999998402e-11", "ramp_end_time 2e-11"))
     with pytest.raises(ConfigError, match="ramp_end_time") as e:
-        RadarConfig.from_coloradar(cal, "cascade")
+        read_coloradar_config(cal, "cascade")
     assert str(wf) in str(e.value)
 
     wf.write_text(good)
     with pytest.raises(ConfigError, match="'cascade', 'single_chip'"):
-        RadarConfig.from_coloradar(cal, "triple_chip")
+        read_coloradar_config(cal, "triple_chip")
 
     ant = cal / "single_chip" / "antenna_cfg.txt"
     ant.write_text(ant.read_text().replace("tx 1 4 0", "tx 1 4"))
     with pytest.raises(ConfigError, match="malformed") as e:
-        RadarConfig.from_coloradar(cal, "single_chip")
+        read_coloradar_config(cal, "single_chip")
     assert str(ant) in str(e.value)
 
 

@@ -28,7 +28,7 @@ def test_01_help(cmd, capsys):
 def test_02_synth_then_info_and_ra(tmp_path, capsys):
     out = tmp_path / "t.h5"
     assert main(["synth", "--radar", "mmwcas", "--chirps", "1", "--target", "8.0,10",
-                 "--output", str(out)]) == 0
+                 "--out", str(out)]) == 0
     assert main(["info", str(out)]) == 0
     text = capsys.readouterr().out
     line = [l for l in text.splitlines() if l.startswith("strongest")][0]
@@ -58,7 +58,7 @@ def test_04_truncated_bin_exits_2_no_output(tmp_path, measured_dir):
     bad = tmp_path / "cut.bin"
     bad.write_bytes(src.read_bytes()[:10001])
     out = tmp_path / "out.h5"
-    res = _run("convert", str(bad), str(out))
+    res = _run("convert", str(bad), "--out", str(out))
     assert res.returncode == EXIT_BAD_INPUT
     assert "cut.bin" in res.stderr
     assert not out.exists()
@@ -74,19 +74,19 @@ def test_05_nan_capture_rejected(tmp_path):
 
     with h5py.File(path, "r+") as f:
         f["adc"][0, 0, 0, 0, 3] = np.nan
-    res = _run("convert", str(path), str(tmp_path / "o.h5"))
+    res = _run("convert", str(path), "--out", str(tmp_path / "o.h5"))
     assert res.returncode == EXIT_BAD_INPUT
     assert "NaN" in res.stderr
     assert not (tmp_path / "o.h5").exists()
 
 
 def test_06_bad_target_and_existing_output(tmp_path):
-    res = _run("synth", "--target", "abc", "--output", str(tmp_path / "x.h5"))
+    res = _run("synth", "--target", "abc", "--out", str(tmp_path / "x.h5"))
     assert res.returncode == EXIT_BAD_INPUT and "--target" in res.stderr
     assert not (tmp_path / "x.h5").exists()
     existing = tmp_path / "keep.h5"
     existing.write_text("old")
-    res = _run("synth", "--target", "2,0", "--output", str(existing))
+    res = _run("synth", "--target", "2,0", "--out", str(existing))
     assert res.returncode == EXIT_BAD_INPUT and "exists" in res.stderr
     assert existing.read_text() == "old"
 
@@ -105,9 +105,10 @@ def test_08_demo_runs_on_embedded_capture(tmp_path, monkeypatch):
     """Without measured data the demo says so and runs on its synthetic capture."""
     monkeypatch.setenv("SIONNA_MMIR_MEASURED", str(tmp_path / "absent"))
     monkeypatch.chdir(tmp_path)
-    from sionna_mmir.cli import demo
+    from sionna_mmir.captures import measured
+    from sionna_mmir.compare import demo
 
-    monkeypatch.setattr(demo, "find_measured_dir", lambda: None)
+    monkeypatch.setattr(measured, "find_measured_dir", lambda: None)
     summary = demo.run_demo(out=tmp_path / "rep", fit_iterations=1, fit_rays=2000,
                             sionna_samples=20_000, progress=False)
     assert summary["note"] and "synthetic" in summary["note"]
@@ -136,7 +137,7 @@ def test_09_render_writes_capture_with_target_at_its_range(tmp_path):
     wall = _wall_ply(tmp_path / "wall.ply")
     out = tmp_path / "r.h5"
     assert main(["render", wall, "--material", "wall=metal", "--radar", "awr1843",
-                 "--rays", "6000", "--chirps", "2", "--output", str(out)]) == 0
+                 "--rays", "6000", "--chirps", "2", "--out", str(out)]) == 0
     cap = Capture.load(str(out))
     assert cap.frames.shape == (1, 3, 4, 2, 128)
     ra, ranges, _ = range_azimuth(cap.frames[0], cap.radar)
@@ -155,7 +156,7 @@ def test_10_render_bad_inputs_exit_2_without_output(tmp_path, capsys):
              ([wall, "--position", "0,0"], "three")]
     for args, word in cases:
         out = tmp_path / "o.h5"
-        code = main(["render", *args, "--radar", "awr1843", "--rays", "500", "--output", str(out)])
+        code = main(["render", *args, "--radar", "awr1843", "--rays", "500", "--out", str(out)])
         err = capsys.readouterr().err
         assert code == EXIT_BAD_INPUT and word in err, (args, err)
         assert not out.exists()
@@ -165,7 +166,7 @@ def _target_capture(tmp_path):
     wall = _wall_ply(tmp_path / "wall.ply")
     tgt = tmp_path / "tgt.h5"
     assert main(["render", wall, "--material", "wall=metal", "--radar", "awr1843",
-                 "--rays", "3000", "--output", str(tgt)]) == 0
+                 "--rays", "3000", "--out", str(tgt)]) == 0
     return wall, str(tgt)
 
 
@@ -185,7 +186,7 @@ def test_11_fit_and_compare_write_reports_and_resume(tmp_path):
     again = json.loads((out / "summary.json").read_text())
     np.testing.assert_allclose(again["mmIR"]["loss"], summary["mmIR"]["loss"], rtol=1e-6)
     cmp_out = tmp_path / "cmp"
-    assert main(["compare", *common, "--sionna-samples", "2000", "--denoise",
+    assert main(["compare", *common, "--sionna-samples", "2000", "--scaffold", "lidar",
                  "--sampling", "facets", "--out", str(cmp_out)]) == 0
     table = (cmp_out / "table2.md").read_text()
     assert "mmIR" in table and "Sionna RT" in table
@@ -209,9 +210,9 @@ def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
     cases = [([tgt, str(behind)], "do not overlap"), ([str(tmp_path / "no.h5"), wall], "no.h5"),
              ([str(junk), wall], "junk.bin"), ([tgt, str(tmp_path / "no.ply")], "does not exist"),
              ([tgt, wall, "--iterations", "0"], "iterations"),
-             ([tgt, str(empty), "--denoise"], "no faces"),
-             ([tgt, str(empty), "--flat-shading"], "no faces"),
-             ([tgt, str(empty), "--planes"], "no faces"),
+             ([tgt, str(empty), "--scaffold", "lidar"], "no faces"),
+             ([tgt, str(empty), "--shading", "flat"], "no faces"),
+             ([tgt, str(empty), "--scaffold", "lidar", "--shading", "shared"], "no faces"),
              ([tgt, str(empty), "--shading", "auto"], "no faces"),
              ([tgt, wall, "--min-rel-power", "-1"], "min_rel_power"),
              ([tgt, wall, "--normals-smoothing", "nan"], "normals_smoothing"),
@@ -229,7 +230,7 @@ def test_13_bench_reports_both_timings_and_rejects_bad_options(tmp_path, capsys)
 
     out = tmp_path / "b.json"
     assert main(["bench", "--rays", "300", "--repeat", "1", "--max-triangles", "3000",
-                 "--json", str(out)]) == 0
+                 "--out", str(out)]) == 0
     res = json.loads(out.read_text())
     assert res["mmir_s_per_it"] > 0 and res["sionna_s_per_it"] > 0
     assert abs(res["ratio_mmir_over_sionna"] - res["mmir_s_per_it"] / res["sionna_s_per_it"]) < 1e-9

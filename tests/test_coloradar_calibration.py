@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from sionna_mmir import RadarConfig
-from sionna_mmir.cli.commands import point_target_paths
+from sionna_mmir.fmcw.targets import point_target_paths
 from sionna_mmir.fmcw import synthesize_adc
-from sionna_mmir.processing.coloradar_calibration import (coloradar_phase_frequency_correct,
-                                                          coloradar_range_fft)
+from sionna_mmir.captures.coloradar_calib import (coloradar_phase_frequency_correct,
+                                                   coloradar_range_fft, read_coloradar_config)
 
 
 @pytest.fixture(scope="module")
@@ -18,7 +18,7 @@ def calib(measured_dir):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        radar = RadarConfig.from_coloradar(d, "cascade").replace(num_chirps=2)
+        radar = read_coloradar_config(d, "cascade").replace(num_chirps=2)
     return d, radar
 
 

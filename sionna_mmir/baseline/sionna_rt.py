@@ -206,6 +206,43 @@ def _check_unit(name, v):
     return f
 
 
+def _check_inputs(where, meshes, materials, radar, frequency, scattering_pattern,
+                  antenna_pattern) -> float:
+    """Validate the baseline's inputs; returns the frequency [Hz]."""
+    if not isinstance(radar, RadarConfig):
+        raise ConfigError(f"{where}: radar must be a RadarConfig, got {type(radar).__name__}")
+    if not isinstance(meshes, dict):
+        raise InputValueError(f"{where}: meshes must be a dict name -> trimesh / path, "
+                              f"got {type(meshes).__name__}")
+    if not meshes:
+        raise InputValueError(f"{where}: meshes is empty; give at least one object "
+                              "(dict name -> trimesh.Trimesh or PLY/OBJ path)")
+    if not isinstance(materials, dict):
+        raise ConfigError(f"{where}: materials must be a dict name -> ITU material name, "
+                          f"got {type(materials).__name__}")
+    missing = sorted(set(meshes) - set(materials))
+    extra = sorted(set(materials) - set(meshes))
+    if missing:
+        raise ConfigError(f"{where}: no material given for object(s) {missing}")
+    if extra:
+        raise ConfigError(f"{where}: materials given for unknown object(s) {extra}")
+    try:
+        f = float(frequency)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: frequency must be a number [Hz], "
+                          f"got {frequency!r}") from None
+    if not math.isfinite(f) or f <= 0:
+        raise ConfigError(f"{where}: frequency must be a positive finite number [Hz], "
+                          f"got {frequency!r}")
+    if scattering_pattern not in _SCATTERING_PATTERNS:
+        raise ConfigError(f"{where}: scattering_pattern must be one of "
+                          f"{_SCATTERING_PATTERNS}, got {scattering_pattern!r}")
+    if antenna_pattern not in _PATTERNS:
+        raise ConfigError(f"{where}: antenna_pattern must be one of {_PATTERNS}, "
+                          f"got {antenna_pattern!r}")
+    return f
+
+
 class SionnaBaseline:
     """Plain Sionna RT 2.2 on a scene + radar, rendered to raw FMCW ADC.
 
@@ -260,38 +297,8 @@ class SionnaBaseline:
                  max_num_paths_per_src: int = 1_000_000, deterministic: bool = True,
                  edge_diffraction: bool = False, drop_degenerate: bool = False):
         where = "SionnaBaseline"
-        if not isinstance(radar, RadarConfig):
-            raise ConfigError(f"{where}: radar must be a RadarConfig, got {type(radar).__name__}")
-        if not isinstance(meshes, dict):
-            raise InputValueError(f"{where}: meshes must be a dict name -> trimesh / path, "
-                                  f"got {type(meshes).__name__}")
-        if not meshes:
-            raise InputValueError(f"{where}: meshes is empty; give at least one object "
-                                  "(dict name -> trimesh.Trimesh or PLY/OBJ path)")
-        if not isinstance(materials, dict):
-            raise ConfigError(f"{where}: materials must be a dict name -> ITU material name, "
-                              f"got {type(materials).__name__}")
-        missing = sorted(set(meshes) - set(materials))
-        extra = sorted(set(materials) - set(meshes))
-        if missing:
-            raise ConfigError(f"{where}: no material given for object(s) {missing}")
-        if extra:
-            raise ConfigError(f"{where}: materials given for unknown object(s) {extra}")
-        try:
-            f = float(frequency)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{where}: frequency must be a number [Hz], "
-                              f"got {frequency!r}") from None
-        if not math.isfinite(f) or f <= 0:
-            raise ConfigError(f"{where}: frequency must be a positive finite number [Hz], "
-                              f"got {frequency!r}")
-        if scattering_pattern not in _SCATTERING_PATTERNS:
-            raise ConfigError(f"{where}: scattering_pattern must be one of "
-                              f"{_SCATTERING_PATTERNS}, got {scattering_pattern!r}")
-        if antenna_pattern not in _PATTERNS:
-            raise ConfigError(f"{where}: antenna_pattern must be one of {_PATTERNS}, "
-                              f"got {antenna_pattern!r}")
-
+        f = _check_inputs(where, meshes, materials, radar, frequency, scattering_pattern,
+                          antenna_pattern)
         self.radar = radar
         self.frequency = f
         self.max_depth = _check_int("max_depth", max_depth, 1)
@@ -308,8 +315,25 @@ class SionnaBaseline:
         kx0 = _check_unit("xpd_coefficient", xpd_coefficient)
         self.scattering_pattern = scattering_pattern
         self.antenna_pattern = antenna_pattern
+        self._init_materials(where, meshes, materials, s0, kx0)
+        self._init_scene(where, meshes, drop_degenerate)
+        self._init_antennas(radar, antenna_pattern)
+        # ---- solver
+        self.solver = rt.PathSolver(deterministic=self.deterministic)
+        self.solver.loop_mode = "evaluated"   # "symbolic" cannot be reverse-differentiated
+        # ---- latents (float64 record of the current values) and initial push
+        self._latents: dict[str, float] = {}
+        for name, m in self.radio_materials.items():
+            for pname in PARAM_NAMES:
+                self._latents[f"{name}.{pname}"] = _to_latent(pname, _scalar(getattr(m, pname)))
+        self.initial_values = {}
+        self.apply(self.params())
+        self.initial_values = self.values()
+        self.last_paths = None
+        self.last_render_s = None
 
-        # ---- materials (validated before any mesh is read)
+    def _init_materials(self, where, meshes, materials, s0, kx0) -> None:
+        """One Sionna ``RadioMaterial`` per object (validated before any mesh is read)."""
         self.object_names = list(meshes)
         self.material_names: dict[str, str] = {}
         self.material_source: dict[str, str] = {}
@@ -323,13 +347,14 @@ class SionnaBaseline:
                 raise ConfigError(f"{where}: material of {name!r} must be an ITU-R P.2040 name "
                                   f"(str), got {mat!r}")
             try:
-                itu = itu_material(mat, f)      # unknown / out of band -> ConfigError
+                itu = itu_material(mat, self.frequency)   # unknown / out of band -> ConfigError
             except ConfigError as exc:
                 raise ConfigError(f"{where}: object {name!r}: {exc}") from None
             self.material_names[name] = itu.name
             self.radio_materials[name] = self._radio_material(name, itu, s0, kx0)
 
-        # ---- meshes -> Mitsuba scene -> Sionna scene
+    def _init_scene(self, where, meshes, drop_degenerate) -> None:
+        """Meshes -> Mitsuba scene -> Sionna scene."""
         scene_dict = {"type": "scene"}
         self.num_triangles = 0
         for name, src in meshes.items():
@@ -344,9 +369,10 @@ class SionnaBaseline:
         # faces sharing vertex indices.  No effect on (flat-shaded) reflection.
         self.scene = rt.Scene(mi_scene=mi.load_dict(scene_dict, optimize=False),
                               remove_duplicate_vertices=True)
-        self.scene.frequency = f
+        self.scene.frequency = self.frequency
 
-        # ---- antennas: one device per element, exact scene positions
+    def _init_antennas(self, radar, antenna_pattern) -> None:
+        """One Sionna device per element, at its exact scene position."""
         self.scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1,
                                              pattern=antenna_pattern, polarization="V")
         self.scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1,
@@ -361,21 +387,6 @@ class SionnaBaseline:
         for j, p in enumerate(self.rx_scene_positions):
             self.scene.add(rt.Receiver(f"rx{j}", position=mi.Point3f(*(float(v) for v in p)),
                                        orientation=ori))
-
-        # ---- solver
-        self.solver = rt.PathSolver(deterministic=self.deterministic)
-        self.solver.loop_mode = "evaluated"   # "symbolic" cannot be reverse-differentiated
-
-        # ---- latents (float64 record of the current values) and initial push
-        self._latents: dict[str, float] = {}
-        for name, m in self.radio_materials.items():
-            for pname in PARAM_NAMES:
-                self._latents[f"{name}.{pname}"] = _to_latent(pname, _scalar(getattr(m, pname)))
-        self.initial_values = {}
-        self.apply(self.params())
-        self.initial_values = self.values()
-        self.last_paths = None
-        self.last_render_s = None
 
     # ------------------------------------------------------------ materials
     def _radio_material(self, name, itu, s0, kx0):

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import CaptureFormatError, ConfigError, InputValueError
 from ..radar.config import RadarConfig
 from .capture import Capture
-from .coloradar_calib import _check_sensor
+from .coloradar_calib import _check_sensor, read_coloradar_config
 
 _FRAME_RE = re.compile(r"^frame_(\d+)\.bin$")
 
@@ -47,7 +47,7 @@ def _timestamps(frame_path: pathlib.Path):
 def read_coloradar_frame(path, radar: RadarConfig) -> Capture:
     """Read one ColoRadar ``frame_N.bin`` with the given radar.
 
-    ``radar`` is usually ``RadarConfig.from_coloradar(calib_dir, sensor)``.
+    ``radar`` is usually ``read_coloradar_config(calib_dir, sensor)``.
     Returns a one-frame :class:`Capture`, complex64 ``[1, n_tx, n_rx,
     num_chirps, num_samples]`` in ADC counts.  ``metadata`` holds ``file``,
     ``frame_index`` (from the name), ``timestamp`` [s] and ``frame_period``
@@ -137,7 +137,7 @@ def read_coloradar_run(run_dir, frame: int = 0, calib_dir=None,
     ``sensor``       ``"cascade"`` or ``"single_chip"``
     ===============  =========================================================
 
-    The radar is ``RadarConfig.from_coloradar(calib_dir, sensor)`` (see
+    The radar is ``read_coloradar_config(calib_dir, sensor)`` (see
     :func:`~sionna_mmir.captures.coloradar_calib.read_coloradar_config`).
     Returns a one-frame :class:`Capture` (see :func:`read_coloradar_frame`).
     """
@@ -168,4 +168,4 @@ def coloradar_radar(where, calib_dir=None, sensor: str = "cascade"):
             raise ConfigError(f"{where}: no ColoRadar calibration found (looked for "
                               f"calib/{sensor}/waveform_cfg.txt in {where} and each parent "
                               f"folder); pass calib_dir or radar")
-    return RadarConfig.from_coloradar(calib_dir, sensor), calib_dir
+    return read_coloradar_config(calib_dir, sensor), calib_dir

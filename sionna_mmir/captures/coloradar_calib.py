@@ -35,7 +35,10 @@ import warnings
 
 import numpy as np
 
-from ..errors import CaptureFormatError, ConfigError
+from ..errors import CaptureFormatError, ConfigError, InputValueError
+from ..processing.calibration import phase_frequency_correct, subtract_coupling
+from ..processing.range_fft import range_fft
+from ..radar.config import RadarConfig
 
 SENSORS = ("cascade", "single_chip")
 
@@ -198,15 +201,17 @@ def _repair_times(path, wf: dict) -> list:
     return notes
 
 
-def read_coloradar_config(cls, calib_dir, sensor: str = "cascade", **overrides):
-    """Build a ``RadarConfig`` (``cls``) from ``<calib_dir>/<sensor>/{waveform,antenna}_cfg.txt``.
+def read_coloradar_config(calib_dir, sensor: str = "cascade", **overrides) -> RadarConfig:
+    """Build a :class:`RadarConfig` from ``<calib_dir>/<sensor>/{waveform,antenna}_cfg.txt``.
 
-    ==============  ==========================================================
-    ``cls``         the :class:`~sionna_mmir.radar.RadarConfig` class
-    ``calib_dir``   ColoRadar ``calib`` folder (holding ``cascade/``, ...)
-    ``sensor``      ``"cascade"`` or ``"single_chip"``
-    ``overrides``   RadarConfig fields to replace (e.g. ``num_chirps=1``)
-    ==============  ==========================================================
+    Parameters
+    ----------
+    calib_dir : str or os.PathLike
+        ColoRadar ``calib`` folder (holding ``cascade/``, ...).
+    sensor : {"cascade", "single_chip"}
+        Which sensor.
+    **overrides
+        RadarConfig fields to replace (e.g. ``num_chirps=1``).
 
     Units: the file's times are seconds, frequencies Hz, slope Hz/s; antenna
     positions are half-wavelengths at ``F_design`` GHz and become
@@ -242,7 +247,7 @@ def read_coloradar_config(cls, calib_dir, sensor: str = "cascade", **overrides):
                   num_chirps=wf["num_chirps_per_frame"], idle_time=wf["idle_time"],
                   adc_start_time=wf["adc_start_time"], ramp_end_time=wf["ramp_end_time"],
                   tdm_order=tuple(range(wf["num_tx"])), name=f"coloradar_{sensor}")
-    known = {f.name for f in dataclasses.fields(cls)} - {"tx_positions", "rx_positions",
+    known = {f.name for f in dataclasses.fields(RadarConfig)} - {"tx_positions", "rx_positions",
                                                          "design_frequency"}
     bad = sorted(set(overrides) - known)
     if bad:
@@ -250,7 +255,7 @@ def read_coloradar_config(cls, calib_dir, sensor: str = "cascade", **overrides):
                           f"{sorted(known)}")
     params.update(overrides)
     try:
-        cfg = cls._from_layout(ant["tx"], ant["rx"], ant["F_design"] * 1e9, **params)
+        cfg = RadarConfig._from_layout(ant["tx"], ant["rx"], ant["F_design"] * 1e9, **params)
     except ConfigError as e:
         raise ConfigError(f"{folder}: {e}") from None
     cfg.notes = tuple(notes)
@@ -477,3 +482,42 @@ def read_transform(path):
     if abs(np.linalg.norm(q) - 1.0) > 1e-3:
         raise ConfigError(f"{path}:{rows[1][0]}: quaternion norm {np.linalg.norm(q):.6f} is not 1")
     return t, q
+
+
+# ------------------------------------------------------- applying the calibration
+# ColoRadar's measured calibration applied to a capture, from its calib folder:
+# 1. phase / frequency correction of the raw ADC from
+#    ``cascade/phase_frequency_calib.txt`` (cascade only; the single chip has
+#    none), with ``interp_factor = 1`` by default because the stored bins read
+#    as plain 256-point bins (corner at 3.04 m, as documented; see
+#    ``PhaseFrequencyCalib.corner_range``);
+# 2. coupling subtraction in the range-FFT domain from ``coupling_calib.txt``,
+#    on the first ``num_range_bins`` bins of every chirp's *unwindowed*
+#    ``num_samples``-point range FFT (ColoRadar's convention is not documented
+#    in the files; a rectangular window is our assumption).
+
+def coloradar_phase_frequency_correct(adc, radar: RadarConfig, calib_dir, interp_factor: int = 1):
+    """Phase/frequency-correct cascade ADC ``[tx, rx, chirp, sample]`` (ColoRadar order)."""
+    path = os.path.join(os.fspath(calib_dir), "cascade", "phase_frequency_calib.txt")
+    cal = read_phase_frequency_calib(path)
+    if cal.phase.shape != (radar.num_tx, radar.num_rx):
+        raise InputValueError(f"{path}: calibration is {cal.phase.shape} [tx, rx] but the radar "
+                              f"has {radar.num_tx} x {radar.num_rx}")
+    return phase_frequency_correct(adc, radar, cal.frequency_bins, cal.phase, cal.slope,
+                                   cal.sample_rate, cal.num_samples, interp_factor=interp_factor)
+
+
+def coloradar_range_fft(adc, radar: RadarConfig, calib_dir, sensor: str = "cascade",
+                        phase_frequency: bool = True, interp_factor: int = 1):
+    """Calibrated range spectrum ``[tx, rx, chirp, num_samples]`` (rectangular window).
+
+    Applies the phase/frequency correction (cascade, optional) and subtracts
+    the measured coupling from the first bins.
+    """
+    x = np.asarray(adc)
+    if sensor == "cascade" and phase_frequency:
+        x = coloradar_phase_frequency_correct(x, radar, calib_dir, interp_factor)
+    path = os.path.join(os.fspath(calib_dir), sensor, "coupling_calib.txt")
+    coupling = read_coupling_calib(path)
+    spec, _ = range_fft(x, radar, window="rect")
+    return subtract_coupling(spec, coupling)

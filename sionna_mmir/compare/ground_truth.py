@@ -1,4 +1,4 @@
-"""Ground-truth captures of the benchmark scenes (:mod:`sionna_mmir.scenes`).
+"""Ground-truth captures of the benchmark scenes (:mod:`sionna_mmir.benchmark_scenes`).
 
 Rendered with the mmIR path solver from the **clean** geometry (subdivided so
 that materials vary), the **true** spatially varying per-vertex materials,
@@ -29,7 +29,7 @@ def render_ground_truth(spec, *, seed: int = 0, num_rays: int = 100_000, max_dep
     from ..captures.capture import Capture
     from ..paths import render, to_numpy
     from ..scene import load_scene
-    from ..scenes import true_materials
+    from ..benchmark_scenes import true_materials
 
     radar = scene_radar(spec)
     clean = spec.refined(max_edge)

@@ -37,17 +37,11 @@ class MMIRModel:
     tx_pattern,       element patterns; default one learnable
     rx_pattern        :class:`~sionna_mmir.radio_devices.CosinePowerPattern`
                       per element
-    solver_options    options of :class:`~sionna_mmir.paths.RadarPathSolver`
-                      (``num_rays``, ``max_depth``, ``cone_angle_deg``, ...)
-    min_rel_power     paths weaker than this x the strongest (power at the
-                      first Tx-Rx pair) are dropped by the solver before
-                      their per-element legs and the ADC synthesis
-                      (``RadarPathSolver`` option; default 1e-6, -60 dB: on the
-                      facet-sampled hallway at depth 3 it keeps 261k of 2M
-                      paths, the ADC error is -27 dB, the RA map correlates
-                      0.9993 with the unpruned one and an iteration takes
-                      4 s instead of 13 s; 1e-8 keeps 980k at -50 dB; 0
-                      keeps all)
+    solver_options    :class:`~sionna_mmir.paths.SolverOptions` of every
+                      render (a dict changes fields of the default); default
+                      :meth:`SolverOptions.fit` (depth 2, paths 60 dB
+                      under the strongest dropped before their
+                      per-element legs: invisible in a min-max RA loss)
     normals_smoothing ``lambda`` of the Laplacian ("large steps")
                       parameterisation of the learned normals
                       (:mod:`~sionna_mmir.fit.smooth_param`; Nicolet et al.
@@ -62,10 +56,9 @@ class MMIRModel:
     """
 
     def __init__(self, scene, radar=None, *, learn=("materials", "normals", "beam"),
-                 tx_pattern=None, rx_pattern=None, solver_options: dict | None = None,
-                 min_rel_power: float = 1e-6, normals_smoothing: float = 0.0,
-                 materials_smoothing: float = 0.0):
-        from ..paths import RadarPathSolver
+                 tx_pattern=None, rx_pattern=None, solver_options=None,
+                 normals_smoothing: float = 0.0, materials_smoothing: float = 0.0):
+        from ..paths import RadarPathSolver, SolverOptions
         from ..radio_devices import CosinePowerPattern
 
         self.scene = scene
@@ -78,9 +71,6 @@ class MMIRModel:
         self.learn = tuple(learn)
         self.tx_pattern = tx_pattern or CosinePowerPattern(n_elements=self.radar.num_tx)
         self.rx_pattern = rx_pattern or CosinePowerPattern(n_elements=self.radar.num_rx)
-        if not (np.isfinite(min_rel_power) and 0 <= min_rel_power < 1):
-            raise ConfigError(f"MMIRModel: min_rel_power must be in [0, 1), got {min_rel_power!r}")
-        self.min_rel_power = float(min_rel_power)
         #: latent key -> LaplacianParam (handles are the smoothed fields, see pullback)
         self._smooth = {}
         for what, lam in (("normals", normals_smoothing), ("materials", materials_smoothing)):
@@ -94,8 +84,10 @@ class MMIRModel:
                     self._smooth[f"{name}.{what}"] = LaplacianParam(
                         obj.faces, obj.vertex_positions.shape[0], float(lam))
         self.solver = RadarPathSolver()
-        self.options = dict(num_rays=20_000, max_depth=2)
-        self.options.update(solver_options or {})
+        if isinstance(solver_options, dict):          # fields changed from the fit preset
+            self.options = SolverOptions.fit().replace(**solver_options)
+        else:
+            self.options = SolverOptions.resolve(solver_options or SolverOptions.fit())
 
     # ---------------------------------------------------------------- latents
     def latents(self) -> dict:
@@ -195,9 +187,8 @@ class MMIRModel:
         """``(DrAdc, handles)`` for latents ``z`` with a fresh sample set ``seed``."""
         handles = self._assign(z, grad=True)
         # paths are pruned inside the solver, before their per-element legs
-        paths = self.solver(self.scene, self.radar, seed=int(seed), tx_pattern=self.tx_pattern,
-                            rx_pattern=self.rx_pattern,
-                            **{"min_rel_power": self.min_rel_power, **self.options})
+        paths = self.solver(self.scene, self.radar, self.options, seed=int(seed),
+                            tx_pattern=self.tx_pattern, rx_pattern=self.rx_pattern)
         return paths.adc(self.radar), handles
 
     def physical(self, z: dict) -> dict:

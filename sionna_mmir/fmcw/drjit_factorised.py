@@ -139,7 +139,7 @@ def synthesize_adc_factorised_drjit(radar: RadarConfig, c_re, c_im, g_t, tau_t, 
     import drjit as dr
     import mitsuba as mi
 
-    from .synthesize import DrAdc
+    from .engine import DrAdc
 
     raw = dict(c_re=c_re, c_im=c_im, g_t=g_t, tau_t=tau_t, g_r=g_r, tau_r=tau_r, rate=rate)
     args = {k: None if v is None else _as_float(v, k) for k, v in raw.items()}

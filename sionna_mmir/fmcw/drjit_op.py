@@ -78,7 +78,7 @@ def _make_op():
     import drjit as dr
     import mitsuba as mi
 
-    from .synthesize import _Prepared
+    from .engine import Prepared as _Prepared
 
     class SynthesizeADCOp(dr.CustomOp):
         """Custom AD node: (a_re, a_im, tau, rho) -> (adc_re, adc_im)."""
@@ -130,7 +130,7 @@ def synthesize_adc_drjit(radar: RadarConfig, a, tau, tau_rate=None):
     import drjit as dr
     import mitsuba as mi
 
-    from .synthesize import DrAdc
+    from .engine import DrAdc
 
     if _OP is None:
         _OP = _make_op()

@@ -329,20 +329,19 @@ class RadarConfig:
         params.update(kw)
         return cls._from_layout(tx, rx, design, **params)
 
+    #: preset constructors by name (command line, dataset specs)
+    PRESETS = ("mmwcas", "awr1843", "dense")
+
     @classmethod
-    def from_coloradar(cls, calib_dir: str | os.PathLike, sensor: str = "cascade",
-                       **kw) -> "RadarConfig":
-        """Read ColoRadar's ``<calib_dir>/<sensor>/{waveform,antenna}_cfg.txt``.
+    def preset(cls, name: str, **kw) -> "RadarConfig":
+        """A preset radar by name: ``"mmwcas"``, ``"awr1843"`` or ``"dense"``.
 
-        ``sensor`` is ``"cascade"`` or ``"single_chip"``.  Tx/Rx indices follow
-        the files (which is also the ``[tx][rx]`` order of ColoRadar's
-        ``frame_N.bin``).  Known defects of the stored cascade waveform are
-        repaired with a ``ColoRadarRepairWarning`` and recorded in ``notes``: ``adc_start_time`` stored in
-        microseconds (6.0) and ``ramp_end_time`` stored as 4e-11 (40 us).
+        ``kw`` go to the constructor (e.g. ``num_chirps=4``, ``position=...``).
+        An unknown name raises :class:`~sionna_mmir.errors.ConfigError`.
         """
-        from ..captures.coloradar_calib import read_coloradar_config  # local: avoids cycle
-
-        return read_coloradar_config(cls, calib_dir, sensor, **kw)
+        if name not in cls.PRESETS:
+            raise ConfigError(f"unknown radar preset {name!r}; choose from {list(cls.PRESETS)}")
+        return getattr(cls, name)(**kw)
 
 
 def rotation_matrix(orientation: Sequence[float]) -> np.ndarray:

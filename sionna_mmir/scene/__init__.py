@@ -3,31 +3,21 @@
 ``mesh_io``  read / validate PLY, OBJ or trimesh meshes, build ``mi.Mesh``
 ``scene``    :class:`RadarScene` (subclass of ``sionna.rt.Scene``) and
              :func:`load_scene`
-``denoise``  MLS denoising of LiDAR-like meshes
-``planes``   :func:`snap_planes` (planar regions onto fitted planes)
-``scaffold`` :func:`prepare_scaffold` (denoise -> planes -> shading)
-``shading``  :func:`flat_shaded`, :func:`crease_shaded`, :func:`auto_shaded` (no normals
-             averaged across creases)
+``edges``    diffracting edges (boundary / crease) for free-space diffraction
 
 Importing :mod:`sionna_mmir.scene.scene` initialises the Mitsuba backend;
 this package imports it lazily so that ``mesh_io`` stays NumPy-only.
+LiDAR mesh repair (denoising, plane snapping, shading) is
+:mod:`sionna_mmir.scaffold`.
 """
 from __future__ import annotations
 
 import importlib
 
-from .denoise import denoise_mesh, denoise_meshes
-from .planes import snap_planes
-from .scaffold import SHADINGS, prepare_scaffold
 from .mesh_io import DEGENERATE_AREA_M2, TriMeshData, read_mesh, to_mitsuba_mesh
-from .shading import auto_shaded, crease_shaded, flat_shaded
 
-_LAZY = {"RadarScene", "MeshObject", "load_scene", "DEFAULT_FREQUENCY_HZ",
-         "ATTR_NORMAL", "ATTR_MAT0", "ATTR_MAT1"}
-
-__all__ = sorted(_LAZY | {"DEGENERATE_AREA_M2", "TriMeshData", "read_mesh", "to_mitsuba_mesh",
-                          "auto_shaded", "crease_shaded", "denoise_mesh", "denoise_meshes",
-                          "flat_shaded", "prepare_scaffold", "SHADINGS", "snap_planes"})
+_LAZY = {"RadarScene", "MeshObject", "load_scene", "DEFAULT_FREQUENCY_HZ"}
+__all__ = sorted(_LAZY | {"DEGENERATE_AREA_M2", "TriMeshData", "read_mesh", "to_mitsuba_mesh"})
 
 
 def __getattr__(name):

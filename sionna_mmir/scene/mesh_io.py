@@ -82,7 +82,7 @@ def read_mesh(mesh, source: str | None = None,
 
     Shading normals: the mesh's own vertex normals when it has them (a
     PLY's ``nx ny nz``, a ``Trimesh`` built with ``vertex_normals=``, e.g. by
-    :func:`~sionna_mmir.scene.denoise.denoise_mesh`), else trimesh's
+    :func:`~sionna_mmir.scaffold.denoise.denoise_mesh`), else trimesh's
     face-averaged normals.
 
     Raises :class:`~sionna_mmir.errors.InputValueError` naming ``source`` for:

@@ -45,3 +45,32 @@ LIBRARY = {cls.name: cls for cls in _CLASSES}
 def default_library() -> list:
     """One instance of every library effect."""
     return [cls() for cls in LIBRARY.values()]
+
+
+def candidate_effects(names=None) -> list:
+    """Library instances for a list or comma-separated string of names.
+
+    Parameters
+    ----------
+    names : str, sequence of str or None
+        Effect names (``None``: the whole library).
+
+    Returns
+    -------
+    list
+        One new instance per name, in the given order.
+    """
+    from ...errors import ConfigError
+
+    if names is None:
+        return default_library()
+    if isinstance(names, str):
+        names = [x.strip() for x in names.split(",")]
+    out = []
+    for n in (x for x in names if x):
+        if n not in LIBRARY:
+            raise ConfigError(f"unknown effect {n!r}; the library has {sorted(LIBRARY)}")
+        out.append(LIBRARY[n]())
+    if not out:
+        raise ConfigError("empty list of candidate effects")
+    return out

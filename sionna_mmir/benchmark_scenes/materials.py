@@ -1,7 +1,7 @@
 """Ground-truth, spatially varying materials of the benchmark scenes.
 
 The fitter is given each object's *nominal* ITU-R P.2040 class
-(:attr:`SceneSpec.materials <sionna_mmir.scenes.catalog.SceneSpec>`); the
+(:attr:`SceneSpec.materials <sionna_mmir.benchmark_scenes.catalog.SceneSpec>`); the
 ground-truth capture is rendered with the per-vertex parameters
 ``[eps_real, eps_imag, sigma_h, l_c, tau, d]`` returned by
 :func:`true_vertex_materials`, which differ from the nominal ones in a way the
@@ -218,7 +218,7 @@ def true_vertex_materials(spec, mesh_name: str, vertices, seed: int = 0,
     """Ground-truth per-vertex material parameters of object ``mesh_name``.
 
     ============  ========================================================
-    spec          :class:`~sionna_mmir.scenes.catalog.SceneSpec`
+    spec          :class:`~sionna_mmir.benchmark_scenes.catalog.SceneSpec`
     mesh_name     object name (key of ``spec.objects``)
     vertices      (N, 3) world positions to evaluate at [m]
     seed          material seed (independent of the layout seed)

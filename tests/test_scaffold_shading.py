@@ -6,8 +6,9 @@ import pytest
 import trimesh
 
 from sionna_mmir.errors import InputValueError
-from sionna_mmir.scene import auto_shaded, crease_shaded, flat_shaded, read_mesh
-from sionna_mmir.scene.shading import curved_fraction
+from sionna_mmir.scaffold import auto_shaded, crease_shaded, flat_shaded
+from sionna_mmir.scene import read_mesh
+from sionna_mmir.scaffold.shading import curved_fraction
 
 
 def test_01_box_normals_are_the_face_normals():

@@ -67,7 +67,7 @@ import numpy as np
 import trimesh
 
 from ..errors import InputValueError
-from .mesh_io import trimesh_arrays
+from ..scene.mesh_io import trimesh_arrays
 
 #: weight of the stay-put term of the vertex least squares (plane terms weigh
 #: 1 each): a vertex keeps mu / (1 + mu) of its offset from a single plane

@@ -40,7 +40,7 @@ import numpy as np
 import trimesh
 
 from ..errors import InputValueError
-from .mesh_io import DEGENERATE_AREA_M2, trimesh_arrays
+from ..scene.mesh_io import DEGENERATE_AREA_M2, trimesh_arrays
 
 
 def flat_shaded(mesh):

@@ -1,8 +1,8 @@
-"""Tests for :mod:`sionna_mmir.scene.denoise`: the feature-preserving mesh denoiser.
+"""Tests for :mod:`sionna_mmir.scaffold.denoise`: the feature-preserving mesh denoiser.
 
 Every check is against an independent truth: the exact plane(s) the noisy
 test meshes were sampled from, the clean geometry that
-:func:`sionna_mmir.scenes.lidarize` records with its meshes, or the input
+:func:`sionna_mmir.benchmark_scenes.lidarize` records with its meshes, or the input
 mesh itself.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import trimesh
 from scipy.spatial import Delaunay
 
 from sionna_mmir.errors import InputValueError
-from sionna_mmir.scene import denoise_mesh, denoise_meshes
+from sionna_mmir.scaffold import denoise_mesh, denoise_meshes
 
 NOISE = 1e-3        # position noise along the normal [m]
 SPACING = 0.01      # point spacing of the synthetic meshes [m]
@@ -154,14 +154,14 @@ def test_02_crease_is_not_rounded():
 
 @pytest.fixture(scope="module")
 def lidar_hallway():
-    from sionna_mmir.scenes import build_scene, lidarize_scene
+    from sionna_mmir.benchmark_scenes import build_scene, lidarize_scene
 
     spec = build_scene("hallway", seed=0)
     return lidarize_scene(spec, seed=0, max_triangles=50_000)
 
 
 def test_03_lidarized_hallway(lidar_hallway):
-    from sionna_mmir.scenes import mesh_statistics
+    from sionna_mmir.benchmark_scenes import mesh_statistics
 
     spacing = next(iter(lidar_hallway.values())).metadata["lidar"]["point_spacing"]
     out = denoise_meshes(lidar_hallway, radius=3.0 * spacing)
@@ -313,7 +313,7 @@ def test_14_auto_radius_is_three_point_spacings():
     """``radius=None``: 3 median edge lengths; on a jittered 1 cm grid the
     Delaunay edges have a median near the spacing, so the radius is ~3 cm,
     and the plane is still denoised >= 3x."""
-    from sionna_mmir.scene.denoise import auto_radius
+    from sionna_mmir.scaffold.denoise import auto_radius
 
     mesh, n, origin = noisy_plane(seed=3)
     r = auto_radius({"plane": mesh})

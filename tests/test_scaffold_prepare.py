@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 from sionna_mmir.errors import InputValueError
-from sionna_mmir.scene import prepare_scaffold, snap_planes
+from sionna_mmir.scaffold import prepare_scaffold, snap_planes
 
 HALF = np.array([1.0, 0.5, 0.4])
 

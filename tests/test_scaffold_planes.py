@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 from sionna_mmir.errors import InputValueError
-from sionna_mmir.scene import snap_planes
+from sionna_mmir.scaffold import snap_planes
 
 HALF = np.array([1.0, 0.5, 0.4])           # half extents of the test box [m]
 

@@ -11,7 +11,7 @@ Each scene exists in three forms, all generated here from code (no data files):
    (``materials.py``): spatially varying per-vertex ``[eps_real, eps_imag,
    sigma_h, l_c, tau, d]`` the fitter does not know (nominal ITU values,
    patches of other materials, weathered blobs, smooth sinusoidal variation;
-   recipe in :mod:`sionna_mmir.scenes.materials`).  Evaluate them on
+   recipe in :mod:`sionna_mmir.benchmark_scenes.materials`).  Evaluate them on
    :meth:`SceneSpec.refined` meshes for rendering.
 3. **LiDAR-like meshes** -- :func:`lidarize` / :func:`lidarize_scene`
    (``lidar.py``): a simulated scan (visibility by Mitsuba ray tests, range
@@ -85,7 +85,7 @@ building_corner    exterior building corner on boresight at x = 6 m: two 4 m-hig
 
 Typical use::
 
-    from sionna_mmir.scenes import build_scene, lidarize_scene, true_materials
+    from sionna_mmir.benchmark_scenes import build_scene, lidarize_scene, true_materials
     spec = build_scene("hallway", seed=0)
     render_meshes = spec.refined(max_edge=0.25)          # ground truth geometry
     truth = true_materials(spec, seed=0, objects=render_meshes)  # name -> (Nv, 6)

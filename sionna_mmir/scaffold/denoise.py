@@ -1,6 +1,6 @@
 """Feature-preserving denoising of LiDAR-derived meshes (moving-least-squares planes).
 
-A LiDAR reconstruction (:func:`sionna_mmir.scenes.lidarize`) keeps ~1 mm rms
+A LiDAR reconstruction (:func:`sionna_mmir.benchmark_scenes.lidarize`) keeps ~1 mm rms
 of position noise along the surface normal and face normals tilted by a few
 degrees (tens of degrees in mm-sized triangles); at 77 GHz (lambda = 3.9 mm)
 that noise scrambles the coherent specular return of flat walls.
@@ -562,7 +562,7 @@ def denoise_meshes(meshes: dict, **kwargs) -> dict:
 
     ========  ============================================================
     meshes    ``dict`` name -> ``trimesh.Trimesh`` [m] (e.g. the result of
-              :func:`sionna_mmir.scenes.lidarize`)
+              :func:`sionna_mmir.benchmark_scenes.lidarize`)
     kwargs    ``radius`` [m] (``None``: :func:`auto_radius`, 3 median edge
               lengths), ``crease_angle_deg`` [deg], ``iterations``
               (see :func:`denoise_mesh`), the same for every mesh

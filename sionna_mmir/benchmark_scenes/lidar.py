@@ -281,45 +281,99 @@ def lidarize(objects: dict, sensor_positions, seed: int = 0, point_spacing: floa
              smoothing_neighbors: int = 16, max_triangles: int | None = 200_000) -> dict:
     """Simulate a LiDAR scan of ``objects`` and reconstruct one noisy mesh per object.
 
-    ====================  ==================================================
-    objects               ``dict`` name -> clean ``trimesh.Trimesh`` [m]
-    sensor_positions      (S, 3) or (3,) scan positions [m]
-    seed                  random seed (the result is deterministic in it)
-    point_spacing         base point spacing on surfaces [m] (default 1 cm)
-    range_noise_std       raw range noise along the ray [m] (default 5 mm)
-    hole_fraction         fraction of the visible area removed as holes
-    tangential_noise_std  noise across the ray [m]
-    dense_spacing         point spacing in dense patches [m] (3 mm)
-    dense_fraction        fraction of the visible area in dense patches
-    dense_radius          radius of a dense patch [m]
-    hole_radius           (min, max) radius of a hole [m]
-    max_edge_factor       triangles with an edge longer than this times the
-                          local spacing are dropped
-    max_incidence_deg     steepest incidence a LiDAR return survives [deg]
-    smoothing             weight of the reconstruction's local averaging of
-                          the noise (0: raw noise, 1: fully averaged)
-    smoothing_neighbors   neighbours in that average
-    max_triangles         triangle budget (``None``: no budget); the base
-                          spacing grows to fit it
-    returns               ``dict`` name -> ``trimesh.Trimesh`` (see module
-                          docstring for attributes); unseen objects left out
-    ====================  ==================================================
+    Parameters
+    ----------
+    objects : dict
+        Name -> clean ``trimesh.Trimesh`` [m].
+    sensor_positions : array_like
+        ``(S, 3)`` or ``(3,)`` scan positions [m].
+    seed : int
+        Random seed (the result is deterministic in it).
+    point_spacing : float
+        Base point spacing on surfaces [m].
+    range_noise_std : float
+        Raw range noise along the ray [m].
+    hole_fraction : float
+        Fraction of the visible area removed as holes.
+    tangential_noise_std : float
+        Noise across the ray [m].
+    dense_spacing : float
+        Point spacing in dense patches [m].
+    dense_fraction : float
+        Fraction of the visible area in dense patches.
+    dense_radius : float
+        Radius of a dense patch [m].
+    hole_radius : tuple
+        ``(min, max)`` radius of a hole [m].
+    max_edge_factor : float
+        Triangles with an edge longer than this times the local spacing are
+        dropped.
+    max_incidence_deg : float
+        Steepest incidence a LiDAR return survives [deg].
+    smoothing : float
+        Weight of the reconstruction's local averaging of the noise (0: raw
+        noise, 1: fully averaged).
+    smoothing_neighbors : int
+        Neighbours in that average.
+    max_triangles : int or None
+        Triangle budget (``None``: no budget); the base spacing grows to fit it.
 
-    Raises :class:`~sionna_mmir.errors.InputValueError` for an empty or
-    malformed ``objects`` dict, non-finite / mis-shaped sensor positions,
-    bad parameters, or when no surface is visible from any sensor.
+    Returns
+    -------
+    dict
+        Name -> ``trimesh.Trimesh`` (see the module docstring for attributes);
+        unseen objects are left out.
+
+    Raises
+    ------
+    InputValueError
+        An empty or malformed ``objects`` dict, non-finite / mis-shaped sensor
+        positions, bad parameters, or no surface visible from any sensor.
     """
     sensors = _check_inputs(objects, sensor_positions)
-    ps = _positive("point_spacing", point_spacing)
-    ds = _positive("dense_spacing", dense_spacing)
-    sig_r = _positive("range_noise_std", range_noise_std, allow_zero=True)
-    sig_t = _positive("tangential_noise_std", tangential_noise_std, allow_zero=True)
-    hole_fraction = _positive("hole_fraction", hole_fraction, allow_zero=True)
-    dense_fraction = _positive("dense_fraction", dense_fraction, allow_zero=True)
-    dense_radius = _positive("dense_radius", dense_radius)
-    max_edge_factor = _positive("max_edge_factor", max_edge_factor)
-    smoothing = _positive("smoothing", smoothing, allow_zero=True)
-    if hole_fraction > 0.5 or dense_fraction > 0.5 or smoothing > 1:
+    prm = _scan_parameters(point_spacing, dense_spacing, range_noise_std, tangential_noise_std,
+                           hole_fraction, dense_fraction, dense_radius, max_edge_factor, smoothing,
+                           hole_radius, max_incidence_deg, smoothing_neighbors, max_triangles)
+    rng = np.random.default_rng(seed)
+    names = list(objects)
+    groups = []
+    for i, name in enumerate(names):
+        groups.extend(_planar_groups(i, objects[name]))
+    occ = _Occluder(objects)
+    coarse, vis_area = _coarse_pass(groups, occ, sensors, prm["cos_inc"], rng)
+    total_vis = float(vis_area.sum())
+    dense_area, prm["ps"] = _budget(groups, vis_area, total_vis, prm, max_triangles)
+    dense_by_g, holes_by_g = _dense_and_holes(groups, coarse, dense_area, total_vis, prm, rng)
+    pts = _sample_points(groups, sensors, prm, dense_by_g, holes_by_g, rng)
+    _join_t_junctions(groups, pts)
+    visible, sensor_of = _visible_points(occ, pts, sensors, prm["cos_inc"])
+    noisy = _add_noise(pts["pos"], visible, sensor_of, sensors, prm, rng)
+    faces, fnormals = _reconstruct(groups, pts, visible, holes_by_g, prm, len(names))
+    obj_vis_area = np.zeros(len(names))
+    for gi, g in enumerate(groups):
+        obj_vis_area[g.obj] += vis_area[gi]
+    meta = {"point_spacing": float(prm["ps"]), "dense_spacing": float(prm["ds"]),
+            "range_noise_std": float(prm["sig_r"]),
+            "tangential_noise_std": float(prm["sig_t"]), "smoothing": float(prm["smoothing"]),
+            "hole_fraction": float(prm["hole_fraction"]), "n_sensors": int(len(sensors)),
+            "seed": int(seed) if np.isscalar(seed) else None}
+    return _meshes(names, faces, fnormals, noisy, pts, obj_vis_area, meta)
+
+
+def _scan_parameters(point_spacing, dense_spacing, range_noise_std, tangential_noise_std,
+                     hole_fraction, dense_fraction, dense_radius, max_edge_factor, smoothing,
+                     hole_radius, max_incidence_deg, smoothing_neighbors, max_triangles) -> dict:
+    """Validated scan parameters (``InputValueError`` naming a bad one)."""
+    prm = {"ps": _positive("point_spacing", point_spacing),
+           "ds": _positive("dense_spacing", dense_spacing),
+           "sig_r": _positive("range_noise_std", range_noise_std, allow_zero=True),
+           "sig_t": _positive("tangential_noise_std", tangential_noise_std, allow_zero=True),
+           "hole_fraction": _positive("hole_fraction", hole_fraction, allow_zero=True),
+           "dense_fraction": _positive("dense_fraction", dense_fraction, allow_zero=True),
+           "dense_radius": _positive("dense_radius", dense_radius),
+           "max_edge_factor": _positive("max_edge_factor", max_edge_factor),
+           "smoothing": _positive("smoothing", smoothing, allow_zero=True)}
+    if prm["hole_fraction"] > 0.5 or prm["dense_fraction"] > 0.5 or prm["smoothing"] > 1:
         raise InputValueError("lidarize: hole_fraction and dense_fraction must be <= 0.5 "
                               "and smoothing <= 1")
     try:
@@ -330,21 +384,20 @@ def lidarize(objects: dict, sensor_positions, seed: int = 0, point_spacing: floa
         raise InputValueError(f"lidarize: hole_radius must satisfy 0 < min <= max, got {hole_radius!r}")
     if not 0 < float(max_incidence_deg) < 90:
         raise InputValueError(f"lidarize: max_incidence_deg must be in (0, 90), got {max_incidence_deg!r}")
-    k_nb = int(smoothing_neighbors)
-    if k_nb < 1:
+    if int(smoothing_neighbors) < 1:
         raise InputValueError(f"lidarize: smoothing_neighbors must be >= 1, got {smoothing_neighbors!r}")
     if max_triangles is not None and int(max_triangles) < 100:
         raise InputValueError(f"lidarize: max_triangles must be >= 100 or None, got {max_triangles!r}")
-    cos_inc = float(np.cos(np.radians(max_incidence_deg)))
-    rng = np.random.default_rng(seed)
+    prm.update(h_lo=h_lo, h_hi=h_hi, k_nb=int(smoothing_neighbors),
+               cos_inc=float(np.cos(np.radians(max_incidence_deg))))
+    return prm
 
-    names = list(objects)
-    groups = []
-    for i, name in enumerate(names):
-        groups.extend(_planar_groups(i, objects[name]))
-    occ = _Occluder(objects)
 
-    # -- 3. coarse pass: visible area per group, candidate centres -----------
+def _coarse_pass(groups, occ, sensors, cos_inc, rng):
+    """Visible area per group and weighted candidate centres for discs.
+
+    Returns ``((points, weights, group ids), visible area per group)``.
+    """
     coarse_pts, coarse_w, coarse_g = [], [], []
     vis_area = np.zeros(len(groups))
     for gi, g in enumerate(groups):
@@ -360,16 +413,17 @@ def lidarize(objects: dict, sensor_positions, seed: int = 0, point_spacing: floa
             coarse_pts.append(p3[vis])
             coarse_w.append(np.full(vis.sum(), g.area / len(p3)))
             coarse_g.append(np.full(vis.sum(), gi))
-    total_vis = float(vis_area.sum())
-    if total_vis <= 0:
+    if float(vis_area.sum()) <= 0:
         raise InputValueError("lidarize: no surface is visible from the sensor positions")
-    coarse_pts = np.vstack(coarse_pts)
     coarse_w = np.concatenate(coarse_w)
-    coarse_g = np.concatenate(coarse_g)
-    coarse_w = coarse_w / coarse_w.sum()
+    return (np.vstack(coarse_pts), coarse_w / coarse_w.sum(), np.concatenate(coarse_g)), vis_area
 
-    # -- budget: ~2 triangles per interior point, ~1 per boundary point -------
-    dense_area = dense_fraction * total_vis
+
+def _budget(groups, vis_area, total_vis, prm, max_triangles):
+    """``(dense area, base spacing)`` within the triangle budget: ~2 triangles
+    per interior point, ~1 per boundary point."""
+    ps, ds = prm["ps"], prm["ds"]
+    dense_area = prm["dense_fraction"] * total_vis
     if max_triangles is not None:
         budget = float(max_triangles)
         dense_area = min(dense_area, 0.4 * budget / 2 * ds ** 2)
@@ -379,9 +433,15 @@ def lidarize(objects: dict, sensor_positions, seed: int = 0, point_spacing: floa
         # 2 A / s^2 + L / s = B  ->  s = (L + sqrt(L^2 + 8 A B)) / (2 B)
         s_fit = (edge_len + np.sqrt(edge_len ** 2 + 8 * total_vis * base_budget)) / (2 * base_budget)
         ps = max(ps, float(s_fit))
+    return dense_area, ps
 
-    # -- 4. dense and hole discs ---------------------------------------------
-    def _discs(area_goal, radius_fn, fit_last=False):
+
+def _dense_and_holes(groups, coarse, dense_area, total_vis, prm, rng):
+    """Dense-patch and hole discs per group: ``{group: [(centre_2d, r)]}`` twice."""
+    coarse_pts, coarse_w, coarse_g = coarse
+    ps = prm["ps"]
+
+    def discs(area_goal, radius_fn, fit_last=False):
         out, acc = [], 0.0
         while acc < area_goal * (1 - 1e-6):
             k = rng.choice(len(coarse_pts), p=coarse_w)
@@ -392,100 +452,128 @@ def lidarize(objects: dict, sensor_positions, seed: int = 0, point_spacing: floa
             acc += np.pi * r * r
         return out
 
-    dense = _discs(dense_area, lambda: dense_radius, fit_last=True) if dense_area > 0 else []
-    holes = _discs(hole_fraction * total_vis,
-                   lambda: max(rng.uniform(h_lo, h_hi), 1.5 * ps)) if hole_fraction > 0 else []
+    dense = discs(dense_area, lambda: prm["dense_radius"], fit_last=True) if dense_area > 0 else []
+    holes = discs(prm["hole_fraction"] * total_vis,
+                  lambda: max(rng.uniform(prm["h_lo"], prm["h_hi"]), 1.5 * ps)) \
+        if prm["hole_fraction"] > 0 else []
     dense_by_g, holes_by_g = {}, {}
     for gi, c, r in dense:
         dense_by_g.setdefault(gi, []).append((_to2d(groups[gi], c[None])[0], r))
     for gi, c, r in holes:
         holes_by_g.setdefault(gi, []).append((_to2d(groups[gi], c[None])[0], r))
+    return dense_by_g, holes_by_g
 
-    # -- 5. sampling ----------------------------------------------------------
-    shared: dict[tuple, int] = {}
-    pos, nrm, spc, bnd_flag = [], [], [], []   # per point: clean position, normal, spacing
 
-    def _point_id(p, normal):
+class _Points:
+    """Scan points being sampled: clean position, normal, spacing, boundary flag;
+    boundary points shared between pieces by position."""
+
+    def __init__(self, ps):
+        self.ps, self.shared = ps, {}
+        self.pos, self.nrm, self.spc, self.bnd = [], [], [], []
+
+    def boundary_id(self, p, normal):
         key = tuple(np.round(p / _KEY_RES).astype(np.int64).tolist())
-        pid = shared.get(key)
+        pid = self.shared.get(key)
         if pid is None:
-            pid = len(pos)
-            shared[key] = pid
-            pos.append(p)
-            nrm.append(normal)
-            spc.append(ps)
-            bnd_flag.append(True)
+            pid = len(self.pos)
+            self.shared[key] = pid
+            self.pos.append(p)
+            self.nrm.append(normal)
+            self.spc.append(self.ps)
+            self.bnd.append(True)
         return pid
 
-    group_pts = []  # per group: array of point ids
+    def add_interior(self, p3, normal, spacing):
+        start = len(self.pos)
+        self.pos.extend(p3)
+        self.nrm.extend(np.broadcast_to(normal, p3.shape))
+        self.spc.extend(spacing)
+        self.bnd.extend([False] * len(p3))
+        return np.arange(start, start + len(p3))
+
+
+def _boundary_ids(g, pts, ps):
+    """Point ids along the piece's boundary edges (ends and every ``ps``)."""
+    ids = []
+    for a, b in g.edges3d:
+        ids.append(pts.boundary_id(a, g.normal))
+        ids.append(pts.boundary_id(b, g.normal))
+        d = b - a
+        length = np.linalg.norm(d)
+        if length < 1e-9:
+            continue
+        d = d / length
+        sign = np.sign(d[np.flatnonzero(np.abs(d) > 1e-9)[0]])
+        dc = d * sign                                  # canonical line direction
+        foot = a - dc * np.dot(a, dc)                  # line point closest to the origin
+        la, lb = sorted((np.dot(a, dc), np.dot(b, dc)))
+        ks = np.arange(np.ceil((la + 0.3 * ps) / ps), np.floor((lb - 0.3 * ps) / ps) + 1)
+        for k in ks:
+            ids.append(pts.boundary_id(foot + dc * (k * ps), g.normal))
+    return np.unique(np.array(ids, dtype=np.int64))
+
+
+def _interior_points(g, b2d, prm, dense, holes, rng):
+    """Interior 2-D points of a piece and their spacing: the base grid, dense
+    patches, holes removed."""
+    ps, ds = prm["ps"], prm["ds"]
+    p2 = _jittered_grid(g.lo, g.hi, ps, rng)
+    p2 = p2[_inside(g, p2)]
+    if len(b2d) and len(p2):
+        p2 = p2[cKDTree(b2d).query(p2, k=1)[0] > 0.4 * ps]
+    sp = np.full(len(p2), ps)
+    for c2, r in dense:
+        p2 = p2[np.linalg.norm(p2 - c2, axis=1) > r]
+        sp = np.full(len(p2), ps)
+    extra, extra_sp = [], []
+    for c2, r in dense:
+        q = _jittered_grid(c2 - r, c2 + r, ds, rng)
+        q = q[(np.linalg.norm(q - c2, axis=1) <= r) & _inside(g, q)]
+        if len(b2d) and len(q):
+            q = q[cKDTree(b2d).query(q, k=1)[0] > 0.4 * ds]
+        extra.append(q)
+        extra_sp.append(np.full(len(q), ds))
+    if extra:
+        p2 = np.vstack([p2] + extra)
+        sp = np.concatenate([sp] + extra_sp)
+    for c2, r in holes:
+        keep = np.linalg.norm(p2 - c2, axis=1) > r
+        p2, sp = p2[keep], sp[keep]
+    return p2, sp
+
+
+def _sample_points(groups, sensors, prm, dense_by_g, holes_by_g, rng) -> dict:
+    """Sample every piece: boundary points (they may close a silhouette or a
+    T-junction) and, for pieces facing a sensor even at grazing incidence,
+    interior points.  Returns arrays ``pos``, ``nrm``, ``spc``, ``bnd`` and
+    the point ids of each piece (``group_pts``)."""
+    pts = _Points(prm["ps"])
+    group_pts = []
     for gi, g in enumerate(groups):
-        # every piece gets boundary points (they may close a silhouette or a
-        # T-junction); pieces facing a sensor, even at grazing incidence, are
-        # also filled and triangulated
         tri3 = g.origin + g.tri2d[..., :1] * g.u + g.tri2d[..., 1:] * g.v
         facing = np.any((sensors[:, None, :] - tri3.reshape(1, -1, 3)) @ g.normal > 1e-9)
-        ids = []
-        for a, b in g.edges3d:
-            ids.append(_point_id(a, g.normal))
-            ids.append(_point_id(b, g.normal))
-            d = b - a
-            length = np.linalg.norm(d)
-            if length < 1e-9:
-                continue
-            d = d / length
-            sign = np.sign(d[np.flatnonzero(np.abs(d) > 1e-9)[0]])
-            dc = d * sign                                  # canonical line direction
-            foot = a - dc * np.dot(a, dc)                  # line point closest to the origin
-            la, lb = sorted((np.dot(a, dc), np.dot(b, dc)))
-            ks = np.arange(np.ceil((la + 0.3 * ps) / ps), np.floor((lb - 0.3 * ps) / ps) + 1)
-            for k in ks:
-                ids.append(_point_id(foot + dc * (k * ps), g.normal))
-        bids = np.unique(np.array(ids, dtype=np.int64))
+        bids = _boundary_ids(g, pts, prm["ps"])
         if not facing:  # back side: only its boundary points (silhouettes, T-junctions)
             group_pts.append(np.zeros(0, dtype=np.int64))
             continue
-        b2d = _to2d(g, np.asarray([pos[i] for i in bids]))
-        # interior base grid
-        p2 = _jittered_grid(g.lo, g.hi, ps, rng)
-        p2 = p2[_inside(g, p2)]
-        if len(b2d) and len(p2):
-            p2 = p2[cKDTree(b2d).query(p2, k=1)[0] > 0.4 * ps]
-        sp = np.full(len(p2), ps)
-        for c2, r in dense_by_g.get(gi, []):
-            p2 = p2[np.linalg.norm(p2 - c2, axis=1) > r]
-            sp = np.full(len(p2), ps)
-        extra, extra_sp = [], []
-        for c2, r in dense_by_g.get(gi, []):
-            q = _jittered_grid(c2 - r, c2 + r, ds, rng)
-            q = q[(np.linalg.norm(q - c2, axis=1) <= r) & _inside(g, q)]
-            if len(b2d) and len(q):
-                q = q[cKDTree(b2d).query(q, k=1)[0] > 0.4 * ds]
-            extra.append(q)
-            extra_sp.append(np.full(len(q), ds))
-        if extra:
-            p2 = np.vstack([p2] + extra)
-            sp = np.concatenate([sp] + extra_sp)
-        for c2, r in holes_by_g.get(gi, []):
-            keep = np.linalg.norm(p2 - c2, axis=1) > r
-            p2, sp = p2[keep], sp[keep]
-        start = len(pos)
-        p3 = _to3d(g, p2)
-        pos.extend(p3)
-        nrm.extend(np.broadcast_to(g.normal, p3.shape))
-        spc.extend(sp)
-        bnd_flag.extend([False] * len(p3))
-        group_pts.append(np.concatenate([bids, np.arange(start, start + len(p3))]))
+        b2d = _to2d(g, np.asarray([pts.pos[i] for i in bids]))
+        p2, sp = _interior_points(g, b2d, prm, dense_by_g.get(gi, []), holes_by_g.get(gi, []),
+                                  rng)
+        group_pts.append(np.concatenate([bids, pts.add_interior(_to3d(g, p2), g.normal, sp)]))
+    return {"pos": np.asarray(pts.pos, dtype=float).reshape(-1, 3),
+            "nrm": np.asarray(pts.nrm, dtype=float).reshape(-1, 3),
+            "spc": np.asarray(pts.spc, dtype=float), "bnd": np.asarray(pts.bnd, dtype=bool),
+            "group_pts": group_pts}
 
-    pos = np.asarray(pos, dtype=float).reshape(-1, 3)
-    nrm = np.asarray(nrm, dtype=float).reshape(-1, 3)
-    spc = np.asarray(spc, dtype=float)
-    bnd_flag = np.asarray(bnd_flag, dtype=bool)
 
-    # T-junctions: boundary points of other pieces lying on a piece (a cabinet
-    # standing on the floor, a board on a wall) join that piece's points, so
-    # the reconstruction meets them without a gap.
-    b_all = np.flatnonzero(bnd_flag)
-    b_pos = pos[b_all]
+def _join_t_junctions(groups, pts) -> None:
+    """Boundary points of other pieces lying on a piece (a cabinet standing on
+    the floor, a board on a wall) join that piece's points, so the
+    reconstruction meets them without a gap."""
+    group_pts = pts["group_pts"]
+    b_all = np.flatnonzero(pts["bnd"])
+    b_pos = pts["pos"][b_all]
     for gi, g in enumerate(groups):
         if len(group_pts[gi]) == 0:
             continue
@@ -502,18 +590,25 @@ def lidarize(objects: dict, sensor_positions, seed: int = 0, point_spacing: floa
         if extra.size:
             group_pts[gi] = np.union1d(group_pts[gi], extra)
 
-    # -- 2. visibility ----------------------------------------------------------
+
+def _visible_points(occ, pts, sensors, cos_inc):
+    """``(visible, sensor index)`` per point (interior points facing a sensor)."""
+    pos, nrm, bnd = pts["pos"], pts["nrm"], pts["bnd"]
     visible = np.zeros(len(pos), dtype=bool)
     sensor_of = np.full(len(pos), -1)
-    interior = np.flatnonzero(~bnd_flag)
+    interior = np.flatnonzero(~bnd)
     v_i, s_i = _visibility(occ, pos[interior], nrm[interior], sensors, cos_inc)
     visible[interior], sensor_of[interior] = v_i, s_i
-    border = np.flatnonzero(bnd_flag)
+    border = np.flatnonzero(bnd)
     if border.size:
         v_b, s_b = _visibility(occ, pos[border], None, sensors, cos_inc)
         visible[border], sensor_of[border] = v_b, s_b
+    return visible, sensor_of
 
-    # -- 6. noise ---------------------------------------------------------------
+
+def _add_noise(pos, visible, sensor_of, sensors, prm, rng):
+    """Noisy positions: range noise along the ray, tangential noise across it,
+    locally averaged by the reconstruction."""
     vis_idx = np.flatnonzero(visible)
     ray = pos[vis_idx] - sensors[sensor_of[vis_idx]]
     ray /= np.linalg.norm(ray, axis=1, keepdims=True)
@@ -523,49 +618,64 @@ def lidarize(objects: dict, sensor_positions, seed: int = 0, point_spacing: floa
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
     t2 = np.cross(ray, t1)
     m = len(vis_idx)
+    sig_r, sig_t, smoothing = prm["sig_r"], prm["sig_t"], prm["smoothing"]
     e = (rng.normal(0, 1, m)[:, None] * sig_r * ray + rng.normal(0, 1, m)[:, None] * sig_t * t1
          + rng.normal(0, 1, m)[:, None] * sig_t * t2)
     if smoothing > 0 and m > 1:
-        k = min(k_nb, m)
+        k = min(prm["k_nb"], m)
         _, nb = cKDTree(pos[vis_idx]).query(pos[vis_idx], k=k)
         nb = nb.reshape(m, -1)
         e = (1 - smoothing) * e + smoothing * e[nb].mean(axis=1)
     noisy = pos.copy()
     noisy[vis_idx] += e
+    return noisy
 
-    # -- 7. reconstruction -------------------------------------------------------
-    obj_faces = {i: [] for i in range(len(names))}
-    obj_fnormal = {i: [] for i in range(len(names))}
+
+def _triangulate(g, ids, pos, spc, holes, max_edge_factor):
+    """Delaunay triangles of a piece's visible points, long and sliver
+    triangles and holes dropped, wound like the piece."""
+    p2 = _to2d(g, pos[ids])
+    try:
+        tri = Delaunay(p2).simplices
+    except (QhullError, ValueError):
+        return None
+    a, b, c = p2[tri[:, 0]], p2[tri[:, 1]], p2[tri[:, 2]]
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    lens = np.stack([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
+                     np.linalg.norm(a - c, axis=1)], axis=1)
+    lmax = lens.max(axis=1)
+    local = spc[ids][tri].max(axis=1)
+    cen = (a + b + c) / 3
+    ok = (lmax <= max_edge_factor * local) & (np.abs(area2) > 0.04 * lmax ** 2)
+    ok &= _inside(g, cen)
+    for c2, r in holes:
+        ok &= np.linalg.norm(cen - c2, axis=1) > r
+    tri, area2 = tri[ok], area2[ok]
+    flip = area2 < 0
+    tri[flip] = tri[flip][:, ::-1]
+    return tri
+
+
+def _reconstruct(groups, pts, visible, holes_by_g, prm, n_objects):
+    """Faces (global point ids) and face normals per object."""
+    obj_faces = {i: [] for i in range(n_objects)}
+    obj_fnormal = {i: [] for i in range(n_objects)}
     for gi, g in enumerate(groups):
-        ids = group_pts[gi]
+        ids = pts["group_pts"][gi]
         ids = ids[visible[ids]]
         if len(ids) < 3:
             continue
-        p2 = _to2d(g, pos[ids])
-        try:
-            tri = Delaunay(p2).simplices
-        except (QhullError, ValueError):
+        tri = _triangulate(g, ids, pts["pos"], pts["spc"], holes_by_g.get(gi, []),
+                           prm["max_edge_factor"])
+        if tri is None:
             continue
-        a, b, c = p2[tri[:, 0]], p2[tri[:, 1]], p2[tri[:, 2]]
-        area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-        lens = np.stack([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
-                         np.linalg.norm(a - c, axis=1)], axis=1)
-        lmax = lens.max(axis=1)
-        local = spc[ids][tri].max(axis=1)
-        cen = (a + b + c) / 3
-        ok = (lmax <= max_edge_factor * local) & (np.abs(area2) > 0.04 * lmax ** 2)
-        ok &= _inside(g, cen)
-        for c2, r in holes_by_g.get(gi, []):
-            ok &= np.linalg.norm(cen - c2, axis=1) > r
-        tri, area2 = tri[ok], area2[ok]
-        flip = area2 < 0
-        tri[flip] = tri[flip][:, ::-1]
         obj_faces[g.obj].append(ids[tri])
         obj_fnormal[g.obj].append(np.broadcast_to(g.normal, (len(tri), 3)))
+    return obj_faces, obj_fnormal
 
-    obj_vis_area = np.zeros(len(names))
-    for gi, g in enumerate(groups):
-        obj_vis_area[g.obj] += vis_area[gi]
+
+def _meshes(names, obj_faces, obj_fnormal, noisy, pts, obj_vis_area, meta) -> dict:
+    """One ``trimesh.Trimesh`` per object seen (clean positions and normals kept)."""
     out = {}
     for i, name in enumerate(names):
         if not obj_faces[i] or sum(len(f) for f in obj_faces[i]) == 0:
@@ -575,20 +685,16 @@ def lidarize(objects: dict, sensor_positions, seed: int = 0, point_spacing: floa
         faces = inv.reshape(-1, 3)
         mesh = trimesh.Trimesh(
             vertices=noisy[used], faces=faces, process=False,
-            vertex_attributes={"clean_position": pos[used], "clean_normal": nrm[used]},
+            vertex_attributes={"clean_position": pts["pos"][used],
+                               "clean_normal": pts["nrm"][used]},
             face_attributes={"clean_normal": np.vstack(obj_fnormal[i])})
-        mesh.metadata["lidar"] = {
-            "point_spacing": float(ps), "dense_spacing": float(ds),
-            "range_noise_std": float(sig_r), "tangential_noise_std": float(sig_t),
-            "smoothing": float(smoothing), "hole_fraction": float(hole_fraction),
-            "visible_area_m2": float(obj_vis_area[i]), "n_sensors": int(len(sensors)),
-            "seed": int(seed) if np.isscalar(seed) else None}
+        mesh.metadata["lidar"] = dict(meta, visible_area_m2=float(obj_vis_area[i]))
         out[name] = mesh
     return out
 
 
 def lidarize_scene(spec, seed: int = 0, **kwargs) -> dict:
-    """:func:`lidarize` of a :class:`~sionna_mmir.scenes.catalog.SceneSpec` from its
+    """:func:`lidarize` of a :class:`~sionna_mmir.benchmark_scenes.catalog.SceneSpec` from its
     ``lidar_positions`` (keyword arguments are passed on)."""
     return lidarize(spec.objects, spec.lidar_positions, seed=seed, **kwargs)
 

@@ -27,12 +27,12 @@ Geometry rules (checked by :meth:`SceneSpec.field_of_view_violations`):
   cylinders (poles) share their side vertices (smooth normals);
 * each object has one nominal ITU-R P.2040 material valid at 77 GHz
   (:data:`SceneSpec.materials`); the ground-truth, spatially varying material
-  is :func:`sionna_mmir.scenes.materials.true_vertex_materials`.
+  is :func:`sionna_mmir.benchmark_scenes.materials.true_vertex_materials`.
 
 ``seed`` moves furniture, doors, windows and cars by a few decimetres (and
 picks e.g. which parking stall is empty); the layout of each scene is
 otherwise fixed.  The same ``(name, seed)`` always gives the same geometry.
-See the package docstring (:mod:`sionna_mmir.scenes`) for the per-scene table.
+See the package docstring (:mod:`sionna_mmir.benchmark_scenes`) for the per-scene table.
 """
 from __future__ import annotations
 
@@ -76,7 +76,7 @@ class SceneSpec:
     radar_orientation   (3,) radar (yaw, pitch, roll) [rad], Sionna convention
     description         how the scene is laid out (one paragraph)
     lidar_positions     (S, 3) positions of the simulated LiDAR scans [m]
-                        (input of :func:`sionna_mmir.scenes.lidar.lidarize`)
+                        (input of :func:`sionna_mmir.benchmark_scenes.lidar.lidarize`)
     seed                the layout seed it was built with
     indoor              True for rooms, False for street-type scenes
     ==================  =====================================================
@@ -137,7 +137,7 @@ class SceneSpec:
 
         The geometry is identical; only vertices are added (creases stay
         unshared), so that per-vertex ground-truth materials
-        (:func:`~sionna_mmir.scenes.materials.true_vertex_materials`) vary
+        (:func:`~sionna_mmir.benchmark_scenes.materials.true_vertex_materials`) vary
         across large walls when rendered.  Returns a new ``dict`` name ->
         ``trimesh.Trimesh``.
         """

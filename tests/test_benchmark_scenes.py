@@ -1,4 +1,4 @@
-"""Tests of sionna_mmir.scenes: catalog, ground-truth materials, LiDAR meshes.
+"""Tests of sionna_mmir.benchmark_scenes: catalog, ground-truth materials, LiDAR meshes.
 
 The LiDAR tests scan a closed 2 m x 2 m x 2 m room (faces wound inward) with
 a 0.4 m cube on its floor, from two sensor positions, at 2.5 cm spacing.
@@ -12,7 +12,7 @@ import trimesh
 import sionna_mmir  # noqa: F401  (configures the backend first)
 from sionna_mmir.errors import InputValueError
 from sionna_mmir.radio_materials import available_materials, default_vertex_parameters
-from sionna_mmir.scenes import (
+from sionna_mmir.benchmark_scenes import (
     SCENES,
     WAVELENGTH_77GHZ,
     build_scene,

@@ -1,0 +1,169 @@
+"""Shared arguments of the ``sionna-mmir`` commands and their parsing.
+
+Conventions: every output is ``--out PATH`` (a file or a report folder) and
+is never replaced without ``--overwrite``; solver settings take their
+defaults from a :class:`~sionna_mmir.paths.SolverOptions` preset and scaffold
+settings from a :class:`~sionna_mmir.scaffold.ScaffoldOptions` preset, so a
+default lives in one place; angles on the command line are degrees.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+
+from ..errors import ConfigError, InputValueError
+from ..paths.options import SolverOptions
+from ..scaffold.prepare import SHADINGS, ScaffoldOptions
+
+class DefaultsFormatter(argparse.HelpFormatter):
+    """Help text with each meaningful default shown (not ``None`` or ``False``)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if ("%(default)" not in text and default is not None and default is not False
+                and default != argparse.SUPPRESS and action.option_strings):
+            text += " (default: %(default)s)"
+        return text
+
+
+FORMATTER = DefaultsFormatter
+
+
+def add_capture(p, frame: bool = True) -> None:
+    """``capture`` positional with ``--frame``, ``--calib-dir``, ``--sensor``."""
+    p.add_argument("capture", help="capture: TI .mat, DCA1000 .bin, ColoRadar run folder or "
+                                    "frame_N.bin, OpenRadar .npy, or sionna_mmir HDF5")
+    if frame:
+        p.add_argument("--frame", type=int, default=None,
+                       help="frame index (multi-frame captures; default: the first)")
+    p.add_argument("--calib-dir", default=None,
+                   help="ColoRadar calib folder (default: found beside the run)")
+    p.add_argument("--sensor", default="cascade", choices=["cascade", "single_chip"],
+                   help="ColoRadar sensor")
+
+
+def add_out(p, what: str, required: bool = True, default=None) -> None:
+    """``--out`` and ``--overwrite``."""
+    p.add_argument("--out", required=required, default=default, help=what)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+
+
+def add_pose(p) -> None:
+    """Radar ``--position`` and ``--orientation``."""
+    p.add_argument("--position", default="0,0,0", help="radar position x,y,z [m] in the scene")
+    p.add_argument("--orientation", default="0,0,0",
+                   help="radar yaw,pitch,roll [deg] (Sionna RT's convention)")
+
+
+def add_materials(p) -> None:
+    """Repeatable ``--material OBJECT=ITU``."""
+    p.add_argument("--material", action="append", metavar="OBJECT=ITU",
+                   help="ITU-R P.2040 material per object (default concrete); repeatable")
+
+
+def add_solver(p, preset: SolverOptions, fields=("rays", "depth", "sampling", "cone",
+                                                 "min_rel_power", "seed")) -> None:
+    """Solver options with the preset's defaults."""
+    spec = {
+        "rays": ("--rays", dict(type=int, default=preset.num_rays,
+                                help="candidate rays per render (random sampling)")),
+        "depth": ("--depth", dict(type=int, default=preset.max_depth,
+                                  help="interactions per path")),
+        "sampling": ("--sampling", dict(default=preset.sampling, choices=["random", "facets"],
+                                        help="path sampling (facets: deterministic per-facet "
+                                             "quadrature)")),
+        "cone": ("--cone", dict(type=float, default=preset.cone_angle_deg,
+                                help="ray cone half-angle about boresight [deg]")),
+        "min_rel_power": ("--min-rel-power", dict(
+            type=float, default=preset.min_rel_power,
+            help="drop paths weaker than this x the strongest before the ADC synthesis "
+                 "(0 keeps all)")),
+        "seed": ("--seed", dict(type=int, default=preset.seed, help="sample-set seed")),
+        "diffraction": ("--diffraction", dict(action=argparse.BooleanOptionalAction,
+                                              default=preset.diffraction,
+                                              help="free-space diffraction at edges")),
+    }
+    for name in fields:
+        flag, kw = spec[name]
+        p.add_argument(flag, **kw)
+    p.set_defaults(_solver_preset=preset, _solver_fields=tuple(fields))
+
+
+def solver_options(args, **extra) -> SolverOptions:
+    """The :class:`SolverOptions` the solver arguments describe."""
+    names = {"rays": "num_rays", "depth": "max_depth", "sampling": "sampling",
+             "cone": "cone_angle_deg", "min_rel_power": "min_rel_power", "seed": "seed",
+             "diffraction": "diffraction"}
+    values = {names[f]: getattr(args, f) for f in args._solver_fields}
+    return args._solver_preset.replace(**values, **extra)
+
+
+def add_scaffold(p, preset: str = "none") -> None:
+    """``--scaffold`` preset and a ``--shading`` override."""
+    p.add_argument("--scaffold", default=preset, choices=["none", "lidar"],
+                   help="mesh repair before fitting: none (meshes as given) or lidar "
+                        "(denoise, snap planes, shading per object)")
+    p.add_argument("--shading", default=None, choices=list(SHADINGS),
+                   help="override the preset's shading normals")
+
+
+def scaffold_options(args) -> ScaffoldOptions:
+    """The :class:`ScaffoldOptions` the scaffold arguments describe."""
+    opts = ScaffoldOptions.lidar() if args.scaffold == "lidar" else ScaffoldOptions.none()
+    if args.shading is not None:
+        opts = ScaffoldOptions(opts.denoise, opts.planes, args.shading)
+    return opts
+
+
+def triple(text: str, what: str) -> tuple:
+    """Three finite comma-separated numbers."""
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != 3 or not np.all(np.isfinite(vals)):
+        raise InputValueError(f"{what}: expected three comma-separated numbers, got {text!r}")
+    return vals
+
+
+def named(items, what: str, parse) -> dict:
+    """``NAME=VALUE`` items -> dict, values parsed by ``parse``."""
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise InputValueError(f"{what}: expected NAME=VALUE, got {item!r}")
+        name, value = item.split("=", 1)
+        out[name] = parse(value)
+    return out
+
+
+def pose(args) -> tuple:
+    """``(position [m], orientation [rad])`` of ``--position`` / ``--orientation``."""
+    return (triple(args.position, "--position"),
+            tuple(np.radians(triple(args.orientation, "--orientation"))))
+
+
+def mesh_names(paths) -> dict:
+    """Object name (file stem) -> path; two files with one stem is an error."""
+    names = {}
+    for path in paths:
+        stem = os.path.splitext(os.path.basename(path))[0].replace(".", "_")
+        if stem in names:
+            raise InputValueError(f"{path}: two meshes share the object name {stem!r}")
+        names[stem] = path
+    return names
+
+
+def check_new(path, overwrite: bool) -> None:
+    """Raise ``FileExistsError`` if ``path`` exists and may not be replaced."""
+    if os.path.exists(path) and not overwrite:
+        raise FileExistsError(f"{path}: exists; pass --overwrite to replace it")
+
+
+def positive(value, flag: str, minimum: int = 1) -> None:
+    """Raise ``ConfigError`` unless ``value >= minimum``."""
+    if value < minimum:
+        raise ConfigError(f"{flag} must be >= {minimum}, got {value}")
