@@ -177,6 +177,10 @@ def _fit_and_report(args, cap, radar, names, models, ra_ref, tmp) -> int:
     sides = run_sides(models, ra_ref, cap.frames[0], iterations=args.iterations, lr=args.lr,
                       seed=args.seed, checkpoints=ck)
     _save_model_renders(models, sides, radar, tmp, args.capture)
+    from ..scene.ply_export import save_fitted_ply
+
+    save_fitted_ply(models[0][1], sides["mmIR"].extra["latents"],
+                    os.path.join(tmp, "scene_mmir.ply"), overwrite=True)
     _, ranges, az = range_azimuth(cap.frames[0], radar)
     save_side_figures(os.path.join(tmp, "ra_panels.png"), os.path.join(tmp, "loss.png"),
                       ("measured", ra_ref), sides, ranges, az)

@@ -344,6 +344,17 @@ class RadarConfig:
 
         return read_coloradar_config(cls, calib_dir, sensor, **kw)
 
+    @classmethod
+    def from_sionna(cls, scene, base="mmwcas", **kw) -> "RadarConfig":
+        """Posed at a Sionna scene's ``Transmitter``; layout from its arrays.
+
+        See :func:`sionna_mmir.radar.sionna_devices.radar_from_sionna`
+        (``base``: preset name or ``RadarConfig`` giving the waveform).
+        """
+        from .sionna_devices import radar_from_sionna  # local: imports Sionna
+
+        return radar_from_sionna(scene, base=base, **kw)
+
 
 def rotation_matrix(orientation: Sequence[float]) -> np.ndarray:
     """Rotation radar frame -> scene frame for ``(yaw, pitch, roll)`` [rad].

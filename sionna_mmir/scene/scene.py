@@ -151,35 +151,112 @@ class RadarScene(Scene):
         return out
 
 
-def _radio_material(material: str, frequency: float) -> RadioMaterial:
-    m = itu_material(material, frequency, allow_out_of_band=True)
-    return RadioMaterial(name=f"mmir-{m.name}", relative_permittivity=m.eps_real,
-                         conductivity=m.conductivity)
+def _radio_material(label: str, vertex_materials: np.ndarray, frequency: float) -> RadioMaterial:
+    """Sionna BSDF of one object: the mean per-vertex ``eps_real`` and the
+    conductivity of the mean ``eps_imag`` at ``frequency``."""
+    from ..radio_materials.itu_table import EPSILON_0
+
+    eps_real, eps_imag = np.mean(vertex_materials[:, :2], axis=0)
+    sigma = float(eps_imag) * 2.0 * np.pi * float(frequency) * EPSILON_0
+    return RadioMaterial(name=f"mmir-{label}", relative_permittivity=max(float(eps_real), 1.0),
+                         conductivity=max(sigma, 0.0))
+
+
+@dataclass
+class ObjectData:
+    """One object to build: validated mesh, material label, per-vertex materials.
+
+    ================  ====================================================
+    mesh              :class:`~sionna_mmir.scene.mesh_io.TriMeshData`
+    material          label (an ITU-R P.2040 class or a free name)
+    vertex_materials  ``np.ndarray`` [Nv, 6] (order
+                      :data:`~sionna_mmir.radio_materials.VERTEX_PARAMETER_NAMES`)
+    ================  ====================================================
+    """
+
+    mesh: TriMeshData
+    material: str
+    vertex_materials: np.ndarray
+
+
+def scene_from_objects(objects: dict, frequency: float = DEFAULT_FREQUENCY_HZ,
+                       radar=None) -> RadarScene:
+    """Build a :class:`RadarScene` from ``dict`` name -> :class:`ObjectData`.
+
+    The importers (meshes, Sionna scenes, material PLYs) all end here.
+    Raises ``InputValueError`` for a bad object name or a material array of
+    the wrong shape / with NaN.
+    """
+    if not objects:
+        raise InputValueError("load_scene: no meshes given")
+    if not np.isfinite(float(frequency)) or float(frequency) <= 0:
+        raise ConfigError(f"frequency must be a positive finite number [Hz], got {frequency!r}")
+    bsdfs: dict[str, RadioMaterial] = {}
+    built: dict[str, MeshObject] = {}
+    scene_dict = {"type": "scene"}
+    for name, obj in objects.items():
+        if not isinstance(name, str) or not name or "." in name:
+            raise InputValueError(f"load_scene: object name {name!r} must be a non-empty str without '.'")
+        mats = np.asarray(obj.vertex_materials, dtype=np.float64)
+        if mats.shape != (len(obj.mesh.vertices), 6) or not np.isfinite(mats).all():
+            raise InputValueError(f"load_scene: object {name!r}: vertex materials must be finite "
+                                  f"[{len(obj.mesh.vertices)}, 6], got {mats.shape}")
+        if obj.material not in bsdfs:
+            bsdfs[obj.material] = _radio_material(obj.material, mats, frequency)
+        scene_dict[name] = to_mitsuba_mesh(obj.mesh, name, bsdfs[obj.material])
+        built[name] = MeshObject(
+            name=name, material=obj.material, faces=obj.mesh.faces,
+            vertex_positions=_tensor(obj.mesh.vertices),
+            vertex_normals=_tensor(obj.mesh.normals), vertex_materials=_tensor(mats))
+    mi_scene = mi.load_dict(scene_dict, optimize=False)
+    return RadarScene(mi_scene, built, frequency=frequency, radar=radar)
 
 
 def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict | None = None,
                radar=None, drop_degenerate: bool = False,
-               allow_out_of_band: bool = False) -> RadarScene:
-    """Load triangle meshes into a :class:`RadarScene`.
+               allow_out_of_band: bool | None = None, **options) -> RadarScene:
+    """Load triangle meshes, a Sionna scene or a material PLY into a :class:`RadarScene`.
 
-    ===============  =====================================================
-    meshes           PLY/OBJ path, ``trimesh.Trimesh``, or ``dict`` name ->
-                     path / trimesh (a single mesh is named ``"mesh"``)
-    frequency        carrier frequency [Hz], default 77e9
-    materials        ``dict`` name -> ITU-R P.2040 material (default
-                     ``"concrete"`` for every object)
-    radar            optional ``RadarConfig`` (initial pose)
-    drop_degenerate  remove triangles < 1e-12 m^2 instead of raising
+    =================  ===================================================
+    meshes             PLY/OBJ path, ``trimesh.Trimesh``, or ``dict`` name ->
+                       path / trimesh (a single mesh is named ``"mesh"``);
+                       a ``sionna.rt.Scene``, a Sionna / Mitsuba XML path
+                       (e.g. ``sionna.rt.scene.simple_street_canyon``), see
+                       :func:`~sionna_mmir.scene.sionna_import.load_sionna_scene`;
+                       or a PLY written by
+                       :func:`~sionna_mmir.scene.ply_export.save_scene_ply`
+                       (per-vertex materials restored exactly)
+    frequency          carrier frequency [Hz], default 77e9
+    materials          ``dict`` name -> ITU-R P.2040 material (default
+                       ``"concrete"`` for every object; Sionna scenes: see
+                       ``load_sionna_scene``)
+    radar              optional ``RadarConfig`` (initial pose)
+    drop_degenerate    remove triangles < 1e-12 m^2 instead of raising
     allow_out_of_band  use a material outside its ITU-R P.2040 frequency
-                     range (extrapolated); by default that raises
-                     ``ConfigError`` naming the material and its bands
-    returns          :class:`RadarScene`
-    ===============  =====================================================
+                       range (extrapolated).  ``None`` (default): meshes
+                       raise ``ConfigError`` naming the material and its
+                       bands; Sionna scenes extrapolate with an
+                       ``OutOfBandMaterialWarning`` (their built-in scenes
+                       use brick and marble, tabulated to 40 / 60 GHz)
+    options            Sionna sources only: ``shading``, ``merge_shapes``
+    returns            :class:`RadarScene`
+    =================  ===================================================
 
     Raises ``InputValueError`` for bad meshes (see
     :func:`~sionna_mmir.scene.mesh_io.read_mesh`) and ``ConfigError`` for
     unknown materials or a non-positive frequency.
     """
+    from . import ply_export, sionna_import
+
+    if sionna_import.is_sionna_source(meshes):
+        return sionna_import.load_sionna_scene(
+            meshes, frequency=frequency, materials=materials, radar=radar,
+            drop_degenerate=drop_degenerate, allow_out_of_band=allow_out_of_band, **options)
+    if options:
+        raise ConfigError(f"load_scene: options {sorted(options)} apply to Sionna scenes only")
+    if ply_export.is_scene_ply(meshes):
+        return ply_export.load_scene_ply(meshes, frequency=frequency, materials=materials,
+                                         radar=radar)
     if not isinstance(meshes, dict):
         meshes = {"mesh": meshes}
     if not meshes:
@@ -190,10 +267,7 @@ def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict 
         raise ConfigError(f"load_scene: materials given for unknown objects {unknown}")
     if not np.isfinite(float(frequency)) or float(frequency) <= 0:
         raise ConfigError(f"frequency must be a positive finite number [Hz], got {frequency!r}")
-
-    bsdfs: dict[str, RadioMaterial] = {}
-    objects: dict[str, MeshObject] = {}
-    scene_dict = {"type": "scene"}
+    objects = {}
     for name, src in meshes.items():
         if not isinstance(name, str) or not name or "." in name:
             raise InputValueError(f"load_scene: object name {name!r} must be a non-empty str without '.'")
@@ -202,15 +276,7 @@ def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict 
                                       else f"object {name!r}")
         mat_name = materials.get(name, "concrete")
         vparams = default_vertex_parameters(mat_name, frequency,
-                                            allow_out_of_band=allow_out_of_band)
-        key = itu_material(mat_name, frequency, allow_out_of_band=allow_out_of_band).name
-        if key not in bsdfs:
-            bsdfs[key] = _radio_material(mat_name, frequency)
-        scene_dict[name] = to_mitsuba_mesh(data, name, bsdfs[key])
-        objects[name] = MeshObject(
-            name=name, material=key, faces=data.faces,
-            vertex_positions=_tensor(data.vertices),
-            vertex_normals=_tensor(data.normals),
-            vertex_materials=_tensor(np.tile(vparams, (len(data.vertices), 1))))
-    mi_scene = mi.load_dict(scene_dict, optimize=False)
-    return RadarScene(mi_scene, objects, frequency=frequency, radar=radar)
+                                            allow_out_of_band=bool(allow_out_of_band))
+        key = itu_material(mat_name, frequency, allow_out_of_band=bool(allow_out_of_band)).name
+        objects[name] = ObjectData(data, key, np.tile(vparams, (len(data.vertices), 1)))
+    return scene_from_objects(objects, frequency=frequency, radar=radar)
