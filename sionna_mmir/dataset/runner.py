@@ -139,6 +139,7 @@ def write_manifest(out, spec: DatasetSpec, entries: list, checksums: dict,
     with atomic_path(path) as tmp:
         with open(tmp, "w") as f:
             json.dump(doc, f, indent=1)
+        shard_io.make_readable(tmp)
     return path
 
 

@@ -29,6 +29,13 @@ from ..utils.atomic import atomic_path
 SHARD_FORMAT = "sionna_mmir.dataset_shard"
 
 
+def make_readable(path) -> None:
+    """Give a temporary file (created 0600) the usual ``0666 & ~umask`` mode."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)
+
+
 def adc_checksum(adcs) -> str:
     """sha256 (hex) of the ADC arrays' complex64 bytes, in order."""
     h = hashlib.sha256()
@@ -57,6 +64,7 @@ def write_shard(path, entries: list, adcs: list, digest: str) -> str:
                 g.attrs["seed"] = int(e["seed"])
             f.attrs["sha256"] = checksum
             f.attrs["complete"] = True
+        make_readable(tmp)
     return checksum
 
 
