@@ -9,7 +9,8 @@ import pytest
 from sionna_mmir import Capture, RadarConfig
 from sionna_mmir.cli.main import EXIT_BAD_INPUT, main
 
-SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render", "fit", "compare", "bench"]
+SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render", "fit", "compare", "bench",
+               "dataset"]
 
 
 def _run(*args):

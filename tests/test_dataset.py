@@ -220,3 +220,23 @@ def test_09_locked_folder_exit_2_nothing_written(tmp_path, capsys):
     code, cap = _cli(["dataset", spec, "--out", str(tmp_path / "stuff"), "--quiet"], capsys)
     assert code == EXIT_BAD_INPUT and "is not a dataset folder" in cap.err
     assert os.listdir(tmp_path / "stuff") == ["notes.txt"]
+
+
+def test_10_coloradar_calib_radar(tmp_path, measured_dir):
+    import shutil
+    import warnings
+
+    from sionna_mmir.radar.config import RadarConfig
+
+    calib = tmp_path / "calib"
+    shutil.copytree(measured_dir / "coloradar_calib", calib)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # the repaired cascade waveform
+        spec = load_spec(_spec(tmp_path, radars=["calib", {"coloradar": "calib",
+                                                            "sensor": "single_chip",
+                                                            "chirps": 2}]))
+        cascade = RadarConfig.from_coloradar(calib, "cascade")
+    assert spec.radars[0]["config"] == cascade.to_dict()
+    assert spec.radars[1]["config"]["num_chirps"] == 2
+    with pytest.raises(ConfigError, match=r"nocalib: ColoRadar calib folder does not exist"):
+        load_spec(_spec(tmp_path, radars=[{"coloradar": "nocalib"}]))

@@ -9,6 +9,7 @@ A spec::
                  {"name": "lab", "meshes": {"wall": "wall.ply", "desk": "desk.obj"},
                   "materials": {"wall": "concrete", "desk": "wood"}}],
       "radars": ["awr1843", {"preset": "mmwcas", "chirps": 4},
+                 "coloradar_calib",                         # a ColoRadar calib folder (cascade)
                  {"coloradar": "calib", "sensor": "single_chip"}],
       "poses": {"type": "line", "start": [0, 0, 1], "direction": [1, 0, 0],
                 "speed": 2.0, "frames": 200, "frame_period": 0.1},
@@ -191,7 +192,8 @@ def _radar_entry(item, base, path) -> dict:
     from ..radar.config import RadarConfig
 
     if isinstance(item, str):
-        item = {"preset": item}
+        is_dir = item not in RADAR_PRESETS and os.path.isdir(os.path.join(base, item))
+        item = {"coloradar": item} if is_dir else {"preset": item}
     if not isinstance(item, dict) or ("preset" in item) == ("coloradar" in item):
         raise ConfigError(f"{path}: a radar is a preset name {list(RADAR_PRESETS)} or an object "
                           f"with 'preset' or 'coloradar', got {item!r}")
@@ -211,8 +213,9 @@ def _radar_entry(item, base, path) -> dict:
     else:
         preset = item["preset"]
         if preset not in RADAR_PRESETS:
-            raise ConfigError(f"{path}: unknown radar preset {preset!r}; choose one of "
-                              f"{list(RADAR_PRESETS)} or {{'coloradar': <calib folder>}}")
+            raise ConfigError(f"{path}: unknown radar preset {preset!r} (and no such "
+                              f"ColoRadar calib folder); choose one of {list(RADAR_PRESETS)} "
+                              "or a ColoRadar calib folder")
         options = dict(item.get("options") or {})
         try:
             radar = getattr(RadarConfig, preset)(**kw, **options)
