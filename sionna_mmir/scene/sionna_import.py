@@ -79,7 +79,7 @@ object names win over material names.  Sionna's scattering and XPD
 coefficients and scattering patterns have no counterpart here and are
 ignored (mmIR's BSDF models roughness from ``sigma_h`` / ``l_c``).
 
-When ``radar`` is not given and the Sionna scene has a ``Transmitter``, the
+When ``radar`` is not given and the Sionna scene has one ``Transmitter``, the
 scene's radar is :func:`~sionna_mmir.radar.sionna_devices.radar_from_sionna`
 of it (pose from the transmitter; MMWCAS waveform).
 """
@@ -150,7 +150,7 @@ def load_sionna_scene(source, frequency: float = 77e9, materials: dict | None = 
     materials          ``dict`` object or Sionna material name -> ITU class
                        name or six per-vertex values (see module docstring)
     radar              ``RadarConfig``; default: from the scene's transmitter
-                       if it has one, else none
+                       if it has exactly one, else none
     drop_degenerate    drop triangles < 1e-12 m^2 instead of raising
     allow_out_of_band  ``None`` | ``True`` | ``False``: the 77 GHz policy
                        (module docstring)
@@ -180,7 +180,7 @@ def load_sionna_scene(source, frequency: float = 77e9, materials: dict | None = 
         label, vparams = _object_material(obj, overrides, frequency, allow_out_of_band,
                                           f"{where}: object {sname!r}")
         objects[name] = ObjectData(mesh, label, np.tile(vparams, (len(mesh.vertices), 1)))
-    if radar is None and len(sc.transmitters):
+    if radar is None and len(sc.transmitters) == 1:
         from ..radar.sionna_devices import radar_from_sionna
 
         radar = radar_from_sionna(sc)
