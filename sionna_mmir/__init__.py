@@ -40,7 +40,7 @@ _LAZY = {
     "range_azimuth_elevation": ("sionna_mmir.processing.imaging", "range_azimuth_elevation"),
     "metrics": ("sionna_mmir.metrics", None),
     "init_backend": ("sionna_mmir.utils.backend", "init_backend"),
-    "load_scene": ("sionna_mmir.scene.scene", "load_scene"),
+    "load_scene": ("sionna_mmir.scene.load", "load_scene"),
     "RadarScene": ("sionna_mmir.scene.scene", "RadarScene"),
     "RadarPathSolver": ("sionna_mmir.paths.solver", "RadarPathSolver"),
     "RadarPaths": ("sionna_mmir.paths.radar_paths", "RadarPaths"),

@@ -9,7 +9,8 @@ import pytest
 from sionna_mmir import Capture, RadarConfig
 from sionna_mmir.cli.main import EXIT_BAD_INPUT, main
 
-SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render", "fit", "compare", "bench"]
+SUBCOMMANDS = ["demo", "info", "convert", "ra", "synth", "render", "fit", "compare", "bench",
+               "dataset"]
 
 
 def _run(*args):
@@ -179,7 +180,8 @@ def test_11_fit_and_compare_write_reports_and_resume(tmp_path):
     assert main(["fit", *common, "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert len(summary["mmIR"]["loss"]) == 2
-    for f in ("report.md", "ra_panels.png", "loss.png", "table2.csv", "fit_mmir.h5"):
+    for f in ("report.md", "ra_panels.png", "loss.png", "table2.csv", "fit_mmir.h5",
+              "scene_mmir.ply"):
         assert (out / f).exists(), f
     # resume: the finished checkpoint is picked up, no iteration is redone
     assert main(["fit", *common, "--out", str(out), "--resume"]) == 0

@@ -5,6 +5,7 @@ scaffold settings, budget); :func:`run_fit` loads the capture and the
 meshes, fits mmIR (and, for a comparison, the Sionna RT baseline with the
 same loss, Adam settings and budget) and writes the report folder
 atomically: ``summary.json``, ``report.md``, ``table2.{md,csv}``, RA panels,
+the fitted scene ``scene_mmir.ply`` (per-vertex materials),
 loss curves, the fit checkpoints ``fit_*.h5`` (a killed fit resumes from
 ``<out>.partial``) and the fitted models' renders ``model_*.h5``.
 """
@@ -156,6 +157,7 @@ def run_fit(req: FitRequest) -> dict:
 
 
 def _fit_and_report(req, cap, radar, meshes, models, ra_ref, tmp) -> dict:
+    from ..fit.export import save_fitted_ply
     from ..processing.imaging import range_azimuth
     from .harness import run_sides
     from .report import save_side_figures, table_rows, write_table
@@ -165,6 +167,8 @@ def _fit_and_report(req, cap, radar, meshes, models, ra_ref, tmp) -> dict:
     sides = run_sides(models, ra_ref, cap.frames[0], iterations=req.iterations, lr=req.lr,
                       seed=req.seed, checkpoints=ck)
     save_model_renders(models, sides, radar, tmp, req.capture)
+    save_fitted_ply(models[0][1], sides["mmIR"].extra["latents"],
+                    os.path.join(tmp, "scene_mmir.ply"), overwrite=True)
     _, ranges, az = range_azimuth(cap.frames[0], radar)
     save_side_figures(os.path.join(tmp, "ra_panels.png"), os.path.join(tmp, "loss.png"),
                       ("measured", ra_ref), sides, ranges, az)

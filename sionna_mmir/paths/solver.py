@@ -123,7 +123,7 @@ class RadarPathSolver(PathSolver):
     # ------------------------------------------------------------------ stages
     def _context(self, scene, radar, opts, samples) -> SolverContext:
         """Validate the scene and build the call's constants."""
-        _check_scene(scene, opts)
+        _check_scene(scene, radar, opts)
         geo = SceneGeometry(scene)
         geo.validate()
         if samples is not None:
@@ -215,9 +215,10 @@ def _pattern(spec):
     return make_pattern(spec)
 
 
-def _check_scene(scene, opts) -> None:
+def _check_scene(scene, radar, opts) -> None:
     if not hasattr(scene, "mesh_objects"):
         raise ConfigError("RadarPathSolver needs a sionna_mmir RadarScene (sionna_mmir.load_scene)")
+    scene.check_radar(radar)
     for name in (opts.velocities or {}):
         if name not in scene.mesh_objects:
             raise ConfigError(f"velocities: unknown object {name!r}")

@@ -14,16 +14,22 @@ vertex_materials    [Nv, 6]  ``[eps_real, eps_imag, sigma_h [m], l_c [m],
 ==================  =======  ================================================
 
 plus the radar pose ``position`` [3] (m) and ``orientation`` [3] (yaw, pitch,
-roll; rad).  :meth:`RadarScene.sync` pushes them into Mitsuba, where
-``shape.eval_attribute_3("vertex_mmir_normal" | "vertex_mmir_mat0" |
-"vertex_mmir_mat1", si)`` interpolates them barycentrically at a hit.
+roll; rad).
 
-Frequency: every object's Sionna BSDF is a plain ``RadioMaterial`` whose
-permittivity / conductivity are evaluated once, at load, from the package's
-ITU-R P.2040 table (``allow_out_of_band=True``), with *no* frequency-update
-callback.  Setting ``scene.frequency`` therefore never raises for ITU
-materials whose Sionna band excludes 77 GHz (Sionna's ``ITURadioMaterial``
-would), and never overwrites the learnable ``vertex_materials``.
+One home per fact:
+
+* the per-vertex materials are the tensor of the object's Sionna radio
+  material (:class:`~sionna_mmir.scene.vertex_material.VertexRadioMaterial`,
+  ``scene.get(name).radio_material``); ``MeshObject.vertex_materials`` reads
+  and writes that tensor, and Sionna RT's own solvers evaluate it per hit;
+* the radar pose is the scene's: ``position`` / ``orientation`` are its
+  differentiable state, started from ``scene.radar`` and reset when a radar
+  is assigned (``scene.radar = radar``); a solver call with a radar at
+  another pose is refused.
+
+:meth:`RadarScene.sync` pushes vertex positions into Mitsuba (ray tracing
+uses them).  Setting ``scene.frequency`` never overwrites the learnable
+materials (the radio materials have no frequency-update callback).
 """
 from __future__ import annotations
 
@@ -34,21 +40,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError, InputValueError
-from ..radio_materials import default_vertex_parameters, itu_material
 from ..utils.backend import init_backend
-from .mesh_io import TriMeshData, read_mesh, to_mitsuba_mesh
+from .mesh_io import TriMeshData, to_mitsuba_mesh
+from .vertex_material import VertexRadioMaterial
 
 init_backend()
 
 import mitsuba as mi  # noqa: E402  (after init_backend, on purpose)
-from sionna.rt import RadioMaterial, Scene  # noqa: E402
+from sionna.rt import Scene  # noqa: E402
 
 #: Default carrier frequency [Hz].
 DEFAULT_FREQUENCY_HZ = 77e9
-#: Vertex attribute names read by the BSDF via ``shape.eval_attribute_3``.
-ATTR_NORMAL = "vertex_mmir_normal"
-ATTR_MAT0 = "vertex_mmir_mat0"  # eps_real, eps_imag, sigma_h
-ATTR_MAT1 = "vertex_mmir_mat1"  # l_c, tau, d
 
 
 def _tensor(a: np.ndarray) -> mi.TensorXf:
@@ -56,16 +58,43 @@ def _tensor(a: np.ndarray) -> mi.TensorXf:
     return mi.TensorXf(mi.Float(a.ravel()), a.shape)
 
 
-@dataclass
 class MeshObject:
-    """Differentiable state of one scene object (see module docstring)."""
+    """Differentiable state of one scene object (see the module docstring).
 
-    name: str
-    material: str
-    faces: np.ndarray
-    vertex_positions: mi.TensorXf
-    vertex_normals: mi.TensorXf
-    vertex_materials: mi.TensorXf
+    Parameters
+    ----------
+    name : str
+        Object name.
+    radio_material : VertexRadioMaterial
+        The object's Sionna radio material (holds ``vertex_materials``).
+    faces : numpy.ndarray
+        ``[F, 3]`` vertex indices.
+    vertex_positions, vertex_normals : mi.TensorXf
+        ``[Nv, 3]`` positions [m] and unit shading normals.
+    """
+
+    def __init__(self, name: str, radio_material: VertexRadioMaterial, faces: np.ndarray,
+                 vertex_positions, vertex_normals):
+        self.name = name
+        self.radio_material = radio_material
+        self.faces = faces
+        self.vertex_positions = vertex_positions
+        self.vertex_normals = vertex_normals
+        radio_material.bind(self)
+
+    @property
+    def material(self) -> str:
+        """The material class the parameters started from (e.g. ``"concrete"``)."""
+        return self.radio_material.label
+
+    @property
+    def vertex_materials(self):
+        """``mi.TensorXf [Nv, 6]``: the radio material's per-vertex parameters."""
+        return self.radio_material.vertex_parameters
+
+    @vertex_materials.setter
+    def vertex_materials(self, value):
+        self.radio_material.vertex_parameters = value
 
 
 class RadarScene(Scene):
@@ -89,11 +118,38 @@ class RadarScene(Scene):
         self.frequency = frequency
         self.mesh_objects: dict[str, MeshObject] = objects
         self.radar = radar
+        self.sync()
+
+    @property
+    def radar(self):
+        """The scene's radar (:class:`~sionna_mmir.radar.RadarConfig` or ``None``).
+
+        Assigning one resets the pose tensors ``position`` / ``orientation``
+        to its pose.
+        """
+        return self._radar
+
+    @radar.setter
+    def radar(self, radar):
+        self._radar = radar
         pos = np.zeros(3) if radar is None else np.asarray(radar.position, dtype=float)
         ori = np.zeros(3) if radar is None else np.asarray(radar.orientation, dtype=float)
         self.position = _tensor(pos.reshape(3))
         self.orientation = _tensor(ori.reshape(3))
-        self.sync()
+
+    def check_radar(self, radar) -> None:
+        """Raise ``ConfigError`` if ``radar`` sits at another pose than the scene's radar."""
+        own = self._radar
+        if radar is None or radar is own or own is None:
+            return
+        same = (np.allclose(radar.position, own.position, atol=1e-9)
+                and np.allclose(radar.orientation, own.orientation, atol=1e-12))
+        if not same:
+            raise ConfigError(
+                "the radar given is at another pose than the scene's radar "
+                f"({np.round(radar.position, 6).tolist()} vs "
+                f"{np.round(own.position, 6).tolist()} m); the scene holds the pose: assign "
+                "scene.radar = radar first")
 
     @property
     def frequency(self):
@@ -114,7 +170,7 @@ class RadarScene(Scene):
         return self.get(name).mi_mesh
 
     def sync(self) -> None:
-        """Push positions into Mitsuba and (re)attach normal / material attributes.
+        """Push vertex positions into Mitsuba (ray tracing uses them).
 
         Positions go through ``mi.traverse(scene)`` so the acceleration
         structure is rebuilt; the update is differentiable when the tensors
@@ -122,17 +178,7 @@ class RadarScene(Scene):
         """
         scene_params = mi.traverse(self.mi_scene)
         for name, obj in self.mesh_objects.items():
-            key = f"{name}.vertex_positions"
-            scene_params[key] = obj.vertex_positions.array
-            mesh = self.mesh(name)
-            mat = obj.vertex_materials
-            values = {ATTR_NORMAL: obj.vertex_normals.array,
-                      ATTR_MAT0: mat[:, 0:3].array, ATTR_MAT1: mat[:, 3:6].array}
-            for attr, value in values.items():
-                if mesh.has_attribute(attr):
-                    scene_params[f"{name}.{attr}"] = value
-                else:
-                    mesh.add_attribute(attr, 3, value)
+            scene_params[f"{name}.vertex_positions"] = obj.vertex_positions.array
         scene_params.update()
 
     def params(self) -> dict:
@@ -151,66 +197,48 @@ class RadarScene(Scene):
         return out
 
 
-def _radio_material(material: str, frequency: float) -> RadioMaterial:
-    m = itu_material(material, frequency, allow_out_of_band=True)
-    return RadioMaterial(name=f"mmir-{m.name}", relative_permittivity=m.eps_real,
-                         conductivity=m.conductivity)
+@dataclass
+class ObjectData:
+    """One object to build: validated mesh, material label, per-vertex materials.
 
-
-def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict | None = None,
-               radar=None, drop_degenerate: bool = False,
-               allow_out_of_band: bool = False) -> RadarScene:
-    """Load triangle meshes into a :class:`RadarScene`.
-
-    ===============  =====================================================
-    meshes           PLY/OBJ path, ``trimesh.Trimesh``, or ``dict`` name ->
-                     path / trimesh (a single mesh is named ``"mesh"``)
-    frequency        carrier frequency [Hz], default 77e9
-    materials        ``dict`` name -> ITU-R P.2040 material (default
-                     ``"concrete"`` for every object)
-    radar            optional ``RadarConfig`` (initial pose)
-    drop_degenerate  remove triangles < 1e-12 m^2 instead of raising
-    allow_out_of_band  use a material outside its ITU-R P.2040 frequency
-                     range (extrapolated); by default that raises
-                     ``ConfigError`` naming the material and its bands
-    returns          :class:`RadarScene`
-    ===============  =====================================================
-
-    Raises ``InputValueError`` for bad meshes (see
-    :func:`~sionna_mmir.scene.mesh_io.read_mesh`) and ``ConfigError`` for
-    unknown materials or a non-positive frequency.
+    ================  ====================================================
+    mesh              :class:`~sionna_mmir.scene.mesh_io.TriMeshData`
+    material          label (an ITU-R P.2040 class or a free name)
+    vertex_materials  ``np.ndarray`` [Nv, 6] (order
+                      :data:`~sionna_mmir.radio_materials.VERTEX_PARAMETER_NAMES`)
+    ================  ====================================================
     """
-    if not isinstance(meshes, dict):
-        meshes = {"mesh": meshes}
-    if not meshes:
+
+    mesh: TriMeshData
+    material: str
+    vertex_materials: np.ndarray
+
+
+def scene_from_objects(objects: dict, frequency: float = DEFAULT_FREQUENCY_HZ,
+                       radar=None) -> RadarScene:
+    """Build a :class:`RadarScene` from ``dict`` name -> :class:`ObjectData`.
+
+    The importers (meshes, Sionna scenes, material PLYs) all end here.
+    Raises ``InputValueError`` for a bad object name or a material array of
+    the wrong shape / with NaN.
+    """
+    if not objects:
         raise InputValueError("load_scene: no meshes given")
-    materials = dict(materials or {})
-    unknown = sorted(set(materials) - set(meshes))
-    if unknown:
-        raise ConfigError(f"load_scene: materials given for unknown objects {unknown}")
     if not np.isfinite(float(frequency)) or float(frequency) <= 0:
         raise ConfigError(f"frequency must be a positive finite number [Hz], got {frequency!r}")
-
-    bsdfs: dict[str, RadioMaterial] = {}
-    objects: dict[str, MeshObject] = {}
+    built: dict[str, MeshObject] = {}
     scene_dict = {"type": "scene"}
-    for name, src in meshes.items():
+    for name, obj in objects.items():
         if not isinstance(name, str) or not name or "." in name:
             raise InputValueError(f"load_scene: object name {name!r} must be a non-empty str without '.'")
-        data: TriMeshData = read_mesh(src, drop_degenerate=drop_degenerate,
-                                      source=None if isinstance(src, (str, os.PathLike))
-                                      else f"object {name!r}")
-        mat_name = materials.get(name, "concrete")
-        vparams = default_vertex_parameters(mat_name, frequency,
-                                            allow_out_of_band=allow_out_of_band)
-        key = itu_material(mat_name, frequency, allow_out_of_band=allow_out_of_band).name
-        if key not in bsdfs:
-            bsdfs[key] = _radio_material(mat_name, frequency)
-        scene_dict[name] = to_mitsuba_mesh(data, name, bsdfs[key])
-        objects[name] = MeshObject(
-            name=name, material=key, faces=data.faces,
-            vertex_positions=_tensor(data.vertices),
-            vertex_normals=_tensor(data.normals),
-            vertex_materials=_tensor(np.tile(vparams, (len(data.vertices), 1))))
+        mats = np.asarray(obj.vertex_materials, dtype=np.float64)
+        if mats.shape != (len(obj.mesh.vertices), 6) or not np.isfinite(mats).all():
+            raise InputValueError(f"load_scene: object {name!r}: vertex materials must be finite "
+                                  f"[{len(obj.mesh.vertices)}, 6], got {mats.shape}")
+        material = VertexRadioMaterial(f"mmir-{name}", obj.material, _tensor(mats),
+                                       obj.mesh.faces, frequency)
+        scene_dict[name] = to_mitsuba_mesh(obj.mesh, name, material)
+        built[name] = MeshObject(name, material, obj.mesh.faces,
+                                 _tensor(obj.mesh.vertices), _tensor(obj.mesh.normals))
     mi_scene = mi.load_dict(scene_dict, optimize=False)
-    return RadarScene(mi_scene, objects, frequency=frequency, radar=radar)
+    return RadarScene(mi_scene, built, frequency=frequency, radar=radar)
