@@ -235,7 +235,9 @@ def test_10_coloradar_calib_radar(tmp_path, measured_dir):
         spec = load_spec(_spec(tmp_path, radars=["calib", {"coloradar": "calib",
                                                             "sensor": "single_chip",
                                                             "chirps": 2}]))
-        cascade = RadarConfig.from_coloradar(calib, "cascade")
+        from sionna_mmir.captures import read_coloradar_config
+
+        cascade = read_coloradar_config(calib, "cascade")
     assert spec.radars[0]["config"] == cascade.to_dict()
     assert spec.radars[1]["config"]["num_chirps"] == 2
     with pytest.raises(ConfigError, match=r"nocalib: ColoRadar calib folder does not exist"):
