@@ -67,6 +67,8 @@ OUTSIDE_EFFECTS = ("outside:interference", "outside:tx_droop")
 SCENE_MISMATCH = ("pose_offset",)
 #: Complex std of the thermal noise [ADC counts].
 NOISE_STD_COUNTS = 10.0
+#: Oversampling of the analog IF simulation when the IF filter is planted.
+IF_OVERSAMPLING = 4
 #: Frame period of multi-frame captures [s].
 FRAME_PERIOD_S = 0.1
 
@@ -224,6 +226,14 @@ class _Context:
         self.ref_amp = float(rms[self.strongest])
         self.cache = {}
 
+    def grid(self, up: int = 1) -> np.ndarray:
+        """Fast times [s] from the ramp start, ``up`` per ADC sample, ``[up (n_pre + N)]``.
+
+        Every ``up``-th instant is an ADC-rate instant; the last ``N`` of those
+        are the ADC window.
+        """
+        return self.t[0] + np.arange(up * self.t.size) / (up * self.radar.sample_rate)
+
     def random_point(self, rng, r_min, r_max, az_max_deg, z_range) -> np.ndarray:
         """A point at range ``r_min..r_max`` and ``|azimuth| <= az_max_deg`` inside the room."""
         b = self.scene.bounds
@@ -283,8 +293,12 @@ def _lo(ctx: _Context, params: dict):
                         float(ct.max()) + r.ramp_end_time + 1e-6, dt) for ct in ctx.chirp_times]
 
 
-def _scene_signal(ctx: _Context, params: dict, motion: Motion) -> np.ndarray:
-    """Room, corners, specular walls (cached when static) plus planted paths and coupling."""
+def _scene_signal(ctx: _Context, params: dict, motion: Motion, up: int) -> np.ndarray:
+    """Room, corners, specular walls (cached when static) plus planted paths and coupling.
+
+    Rendered on the fast-time grid :meth:`_Context.grid` ``(up)``.
+    """
+    t = ctx.grid(up)
     ramp = None
     if "chirp_nonlinearity" in params:
         p = params["chirp_nonlinearity"]
@@ -294,13 +308,13 @@ def _scene_signal(ctx: _Context, params: dict, motion: Motion) -> np.ndarray:
     sc = ctx.scene
     groups = [sc.clutter, sc.corner_paths(ctx.lam, ctx.radar_pos)]
     groups += sc.mirror_paths(ctx.radar.center_frequency)
-    key = (tuple(motion.position), tuple(motion.rot.ravel()), repr(params.get(
+    key = (up, tuple(motion.position), tuple(motion.rot.ravel()), repr(params.get(
         "chirp_nonlinearity")), repr(params.get("delay_offset")))
     kw = dict(ramp=ramp, lo=lo, dtau=dtau)
     if motion.velocity is None and lo is None and key in ctx.cache:
         x = ctx.cache[key].copy()
     else:
-        x = render(ctx.radar, groups, motion, ctx.t, ctx.chirp_times, **kw)
+        x = render(ctx.radar, groups, motion, t, ctx.chirp_times, **kw)
         if motion.velocity is None and lo is None:
             ctx.cache[key] = x.copy()
     extra = []
@@ -315,38 +329,51 @@ def _scene_signal(ctx: _Context, params: dict, motion: Motion) -> np.ndarray:
     if "coupling" in params:
         extra.append(fx.coupling_paths(params["coupling"], ctx))
     if extra:
-        x += render(ctx.radar, extra, motion, ctx.t, ctx.chirp_times, **kw)
+        x += render(ctx.radar, extra, motion, t, ctx.chirp_times, **kw)
     return x
 
 
-def _rf_and_mixer(ctx: _Context, params: dict, x, scale: float, motion: Motion, info: dict):
-    """Channel gain, droop, scale, thermal noise, interference, frequency offset, I/Q."""
+def _rf_and_mixer(ctx: _Context, params: dict, x, up: int, scale: float, motion: Motion,
+                  info: dict):
+    """Channel gain, droop, counts scale, interference, frequency offset, I/Q (grid ``up``)."""
+    t = ctx.grid(up)
     if "channel_gain" in params:
         x *= fx.gain_array(params["channel_gain"])[None, :, :, None, None]
     if "outside:tx_droop" in params:
         rel = ctx.chirp_times - ctx.chirp_times.min(axis=(1, 2), keepdims=True)
         x *= fx.droop_gain(params["outside:tx_droop"], rel)[:, :, None, :, None]
     x *= scale
-    rng = _stream(ctx.seed, "thermal_noise")
-    x += (rng.normal(size=x.shape) + 1j * rng.normal(size=x.shape)) * (ctx.noise_std / math.sqrt(2))
     if "outside:interference" in params:
         el = elements(ctx.radar, motion.position, motion.rot)
         burst, hits = fx.interference(params["outside:interference"], ctx, el, ctx.chirp_times,
-                                      ctx.t)
+                                      t, up)
         x += scale * burst
         info["interference_hit_chirps"] = np.argwhere(hits).tolist()
     if "frequency_offset" in params:
         df = np.asarray(params["frequency_offset"]["rx_chip_hz"])[ctx.rx_chip]
-        x *= np.exp(2j * np.pi * df[None, None, :, None, None] * ctx.t)
+        x *= np.exp(2j * np.pi * df[None, None, :, None, None] * t)
     if "iq_imbalance" in params:
         x = fx.apply_iq_imbalance(x, params["iq_imbalance"])
     return x
 
 
-def _if_and_adc(ctx: _Context, params: dict, x, quantize: bool, info: dict):
-    """IF high-pass, coloured noise, ADC window, DC, clipping, rounding."""
+def _thermal(ctx: _Context, params: dict) -> np.ndarray:
+    """White receiver noise on the ADC-rate grid, through the mixer's I/Q and the IF high-pass."""
+    shape = ctx.chirp_times.shape[:2] + (ctx.num_rx,) + ctx.chirp_times.shape[2:] + (ctx.t.size,)
+    rng = _stream(ctx.seed, "thermal_noise")
+    n = (rng.normal(size=shape) + 1j * rng.normal(size=shape)) * (ctx.noise_std / math.sqrt(2))
+    if "iq_imbalance" in params:
+        n = fx.apply_iq_imbalance(n, params["iq_imbalance"])
     if "if_filter" in params:
-        x = fx.apply_if_filter(x, params["if_filter"], ctx.radar.sample_rate)
+        n = fx.apply_if_filter(n, params["if_filter"], ctx.radar.sample_rate)
+    return n
+
+
+def _if_and_adc(ctx: _Context, params: dict, x, up: int, quantize: bool, info: dict):
+    """IF high-pass (at ``up`` f_s), thermal noise, coloured noise, ADC window, DC, clip, rounding."""
+    if "if_filter" in params:
+        x = fx.apply_if_filter(x, params["if_filter"], up * ctx.radar.sample_rate)
+    x = x[..., ::up] + _thermal(ctx, params)
     if "noise_floor" in params:
         times = ctx.chirp_times[..., None] + ctx.t
         x = x + fx.coloured_noise(params["noise_floor"], ctx, times)
@@ -402,11 +429,12 @@ def _truth(ctx: _Context, params: dict, motion: Motion, snr_db: float, scale: fl
 def _build(ctx: _Context, effects: tuple, snr_db: float, quantize: bool) -> SuiteCase:
     params = {name: _DRAW[name](_stream(ctx.seed, name), ctx) for name in effects}
     motion = _motion(ctx, params)
-    x = _scene_signal(ctx, params, motion)
+    up = IF_OVERSAMPLING if "if_filter" in params else 1
+    x = _scene_signal(ctx, params, motion, up)
     scale = ctx.noise_std * 10 ** (snr_db / 20) / ctx.ref_amp
     info = {}
-    x = _rf_and_mixer(ctx, params, x, scale, motion, info)
-    x = _if_and_adc(ctx, params, x, quantize, info)
+    x = _rf_and_mixer(ctx, params, x, up, scale, motion, info)
+    x = _if_and_adc(ctx, params, x, up, quantize, info)
     meta = {"frame_period": FRAME_PERIOD_S, "units": "adc_counts",
             "generator": "sionna_mmir.independent.undeclared"}
     cap = Capture(x.astype(np.complex64), ctx.radar, meta, source="synthetic")
@@ -497,6 +525,20 @@ def suite_kinds(subset: str = "full") -> list:
     raise InputValueError(f"suite: subset must be 'fast' or 'full', got {subset!r}")
 
 
+def iter_suite(subset: str = "full", seed: int = 0, **kw):
+    """Generate the cases of :func:`suite` one at a time (a generator of :class:`SuiteCase`)."""
+    kinds = suite_kinds(subset)
+    radar = "awr1843" if subset == "fast" else "cascade"
+    bad = set(kw) - {"snr_db", "num_frames", "num_clutter", "quantize"}
+    if bad:
+        raise InputValueError(f"suite: unknown keyword(s) {sorted(bad)}")
+    ctx, snr = _setup(seed, radar, None, None, kw.get("snr_db", 35.0), kw.get("num_frames", 1),
+                      kw.get("num_clutter"))
+    quantize = bool(kw.get("quantize", False))
+    for kind in kinds:
+        yield _build(ctx, parse_kind(kind), snr, quantize)
+
+
 def suite(subset: str = "full", seed: int = 0, **kw) -> list:
     """Generate the suite of cases, all sharing one room, clutter and noise.
 
@@ -507,12 +549,5 @@ def suite(subset: str = "full", seed: int = 0, **kw) -> list:
     ``kw`` go to :func:`make_case`'s ``snr_db``, ``num_frames``,
     ``num_clutter`` and ``quantize``.  Returns a list of :class:`SuiteCase`.
     """
-    kinds = suite_kinds(subset)
-    radar = "awr1843" if subset == "fast" else "cascade"
-    bad = set(kw) - {"snr_db", "num_frames", "num_clutter", "quantize"}
-    if bad:
-        raise InputValueError(f"suite: unknown keyword(s) {sorted(bad)}")
-    ctx, snr = _setup(seed, radar, None, None, kw.get("snr_db", 35.0), kw.get("num_frames", 1),
-                      kw.get("num_clutter"))
-    quantize = bool(kw.get("quantize", False))
-    return [_build(ctx, parse_kind(kind), snr, quantize) for kind in kinds]
+    suite_kinds(subset)
+    return list(iter_suite(subset, seed, **kw))

@@ -127,22 +127,34 @@ def draw_chirp_nonlinearity(rng, ctx) -> dict:
 
 
 def draw_phase_noise(rng, ctx) -> dict:
-    """LO phase-noise profile (the process itself is drawn in :func:`lo_phase`)."""
+    """LO phase-noise profile (the process itself is drawn in :func:`lo_phase`).
+
+    ``max_offset_hz`` = ``f_s / 2``: the skirt beyond the IF band is removed by
+    the anti-alias filter, so the process is generated without it.
+    """
     return {"l_1mhz_dbc_hz": float(rng.uniform(-90, -85)),
             "loop_bw_hz": float(rng.uniform(3e5, 8e5)), "floor_dbc_hz": -135.0,
-            "seed": int(rng.integers(2 ** 31))}
+            "max_offset_hz": ctx.radar.sample_rate / 2, "seed": int(rng.integers(2 ** 31))}
 
 
 def phase_noise_psd(f, params) -> np.ndarray:
-    """Two-sided LO phase PSD [rad^2/Hz] (= L(f) in dBc/Hz) at offsets ``f`` [Hz]."""
+    """Two-sided LO phase PSD [rad^2/Hz] (= L(f) in dBc/Hz) at offsets ``f`` [Hz].
+
+    ``L(f) = L1 (1 MHz^2 + f_loop^2) / (f^2 + f_loop^2) + L_floor`` up to
+    ``max_offset_hz``, 0 beyond.
+    """
+    f = np.abs(np.asarray(f, float))
     l1 = 10 ** (params["l_1mhz_dbc_hz"] / 10)
     fl = params["loop_bw_hz"]
-    return l1 * (1e12 + fl ** 2) / (np.asarray(f) ** 2 + fl ** 2) + 10 ** (
-        params["floor_dbc_hz"] / 10)
+    psd = l1 * (1e12 + fl ** 2) / (f ** 2 + fl ** 2) + 10 ** (params["floor_dbc_hz"] / 10)
+    return np.where(f <= params["max_offset_hz"], psd, 0.0)
 
 
 def lo_phase(params, t_start: float, t_stop: float, dt: float):
-    """One realisation of the LO phase [cycles] on ``[t_start, t_stop]`` (an ``LOPhase``)."""
+    """One realisation of the LO phase [cycles] on ``[t_start, t_stop]`` (an ``LOPhase``).
+
+    White Gaussian noise shaped by ``sqrt(PSD / dt)`` in the frequency domain.
+    """
     from .undeclared_adc import LOPhase
 
     n = int(math.ceil((t_stop - t_start) / dt)) + 2
@@ -252,7 +264,7 @@ def ghost_geometry(corner, radar_pos, lam, freq_hz) -> dict:
     bis = to_img / np.linalg.norm(to_img) + to_dir / np.linalg.norm(to_dir)
     beta = math.acos(np.clip(to_img @ to_dir / np.linalg.norm(to_img) / np.linalg.norm(to_dir),
                              -1, 1))
-    s_mixed = corner.rcs(bis, lam) * 2.0 ** (-(beta / corner.retro_width(lam)) ** 2)
+    s_mixed = corner.rcs(bis, lam) * corner.bistatic_factor(beta, lam)
     return {"image": image, "grazing_deg": math.degrees(graze), "gamma": gamma,
             "sigma_double": s_double, "sigma_mixed": s_mixed,
             "double_amp": abs(gamma) ** 2 * math.sqrt(s_double)}
@@ -449,12 +461,16 @@ def draw_interference(rng, ctx) -> dict:
             "pointing_error_deg": float(rng.normal(0, 10)), "seed": int(rng.integers(2 ** 31))}
 
 
-def _burst(params, ctx, t_chirp, t, dist, amp, phases) -> np.ndarray | None:
-    """Baseband burst ``[R, K]`` of one chirp starting at ``t_chirp`` (None if no crossing)."""
+_SIM_UP = 8                                      # interference simulated at 8 f_s
+
+
+def _burst(params, ctx, t_chirp, t, grid_up, dist, amp, phases) -> np.ndarray | None:
+    """Baseband burst ``[R, K]`` on grid ``t`` (``grid_up`` per ADC sample) of the chirp
+    starting at ``t_chirp``; None if the sweeps do not cross."""
     fs, f0, s = ctx.radar.sample_rate, ctx.radar.start_frequency, ctx.radar.slope
     fi, si, ramp, period = (params[k] for k in ("start_hz", "slope_hz_s", "ramp_s", "period_s"))
-    up = 8
-    tt = t[0] + np.arange(t.size * up) / (fs * up)
+    up = _SIM_UP
+    tt = t[0] + np.arange(t.size * up // grid_up) / (fs * up)
     out, hit = np.zeros((dist.size, tt.size), complex), False
     t_abs = t_chirp + tt
     first = int(math.floor((t_abs[0] - dist.max() / C0 - params["start_offset_s"]) / period))
@@ -473,11 +489,14 @@ def _burst(params, ctx, t_chirp, t, dist, amp, phases) -> np.ndarray | None:
     if not hit:
         return None
     b, a = signal.butter(4, 0.45 * fs, fs=fs * up)
-    return signal.lfilter(b, a, out, axis=-1)[:, ::up]
+    return signal.lfilter(b, a, out, axis=-1)[:, ::up // grid_up]
 
 
-def interference(params, ctx, el, chirp_times, t) -> tuple:
-    """Interference at our Rx, path units, ``[F, T, R, L, K]``, and the hit chirps ``[F, T, L]``."""
+def interference(params, ctx, el, chirp_times, t, grid_up: int = 1) -> tuple:
+    """Interference at our Rx, path units, ``[F, T, R, L, K]``, and the hit chirps ``[F, T, L]``.
+
+    ``t`` is the fast-time grid with ``grid_up`` (a divisor of 8) instants per ADC sample.
+    """
     rng = np.random.default_rng(params["seed"])
     phases = rng.uniform(0, 1, 4096)
     p = np.asarray(params["position_m"])
@@ -491,7 +510,7 @@ def interference(params, ctx, el, chirp_times, t) -> tuple:
     out = np.zeros((n_f, n_t, el.rx.shape[0], n_l, t.size), complex)
     hits = np.zeros((n_f, n_t, n_l), bool)
     for idx in np.ndindex(n_f, n_t, n_l):
-        b = _burst(params, ctx, float(chirp_times[idx]), t, d, amp, phases)
+        b = _burst(params, ctx, float(chirp_times[idx]), t, grid_up, d, amp, phases)
         if b is not None:
             out[idx[0], idx[1], :, idx[2]] = b
             hits[idx] = True

@@ -188,9 +188,15 @@ class Corner:
         plate = 1.0 if abs(x) < 1e-12 else (math.sin(x) / x) ** 2
         return self.rcs_max(lam) * 2.0 * math.sin(np.pi / 4 - psi) ** 2 * plate
 
-    def retro_width(self, lam: float) -> float:
-        """Half-power half-width [rad] of the retro-reflected beam, ``lambda / (2 a)``."""
-        return lam / (2.0 * self.size)
+    def bistatic_factor(self, beta: float, lam: float) -> float:
+        """Loss of the retro-reflection at bistatic angle ``beta`` [rad].
+
+        ``1 / (1 + (pi a sin(beta) / lambda)^2)``: the envelope of the
+        aperture's ``sinc^2`` pattern (main lobe ~``lambda / a`` wide, sidelobes
+        falling as ``1 / x^2``), without its nulls.
+        """
+        x = np.pi * self.size * math.sin(beta) / lam
+        return 1.0 / (1.0 + x * x)
 
     def triangles(self) -> np.ndarray:
         """The plates as triangles ``[n, 3, 3]``, normals into the opening."""
