@@ -150,9 +150,8 @@ def _legs(q: np.ndarray, e: np.ndarray, boresight, v_q, v_e):
     dist = np.linalg.norm(d, axis=-1)
     u = d / dist[..., None]
     gain = element_gain(u @ boresight)
-    rel = (0.0 if v_q is None else v_q[None]) - v_e
-    rate = np.einsum("epk,...k->ep", u, rel) if np.ndim(rel) == 1 else np.sum(u * rel, -1)
-    return dist, gain, rate
+    rel = (0.0 if v_q is None else v_q[None]) - v_e            # [3] or [1, P, 3]
+    return dist, gain, np.sum(u * rel, axis=-1)
 
 
 def _point_terms(g: PointPaths, el: Elements, rows):
@@ -237,9 +236,11 @@ class LOPhase:
     phi: np.ndarray
 
     def at(self, t):
-        """``Phi(t)`` [cycles] for any array of absolute times ``t`` [s]."""
-        grid = self.t0 + self.dt * np.arange(self.phi.size)
-        return np.interp(t, grid, self.phi)
+        """``Phi(t)`` [cycles] for any array of absolute times ``t`` [s] (held at the ends)."""
+        x = np.clip((np.asarray(t) - self.t0) / self.dt, 0.0, self.phi.size - 1.000001)
+        i = x.astype(np.int64)
+        w = x - i
+        return self.phi[i] * (1.0 - w) + self.phi[i + 1] * w
 
 
 def _phase(radar, tau, rate, t, ramp, lo, t_chirp):
@@ -296,6 +297,12 @@ def _varying(group, motion, lo) -> bool:
             or (lo is not None and group.strong))
 
 
+def _terms(groups, el: Elements, lam: float, rows=None, t: float | None = None):
+    """``(tau, amp, rate)`` of several groups concatenated along the path axis."""
+    parts = [pair_terms(g if t is None else g.at(t), el, lam, rows) for g in groups]
+    return tuple(np.concatenate([p[k] for p in parts], axis=-1) for k in range(3))
+
+
 def render(radar, groups, motion: Motion, t, chirp_times, *, ramp=None, lo=None,
            dtau=None) -> np.ndarray:
     """Noise-free beat signal of all path groups, complex128 ``[F, T, R, L, K]``.
@@ -313,21 +320,18 @@ def render(radar, groups, motion: Motion, t, chirp_times, *, ramp=None, lo=None,
     out = np.zeros((n_f, n_t, radar.num_rx, n_l, t.size), complex)
     static = [g for g in groups if not _varying(g, motion, lo)]
     if static:
-        el = elements(radar, motion.position, motion.rot)
-        acc = 0
-        for g in static:
-            tau, amp, rate = pair_terms(g, el, lam)
-            acc = acc + render_rows(radar, tau + dtau[..., None], amp, rate, t, ramp)
-        out += acc[None, :, :, None, :]
+        tau, amp, rate = _terms(static, elements(radar, motion.position, motion.rot), lam)
+        out += render_rows(radar, tau + dtau[..., None], amp, rate, t, ramp)[:, :, None]
     moving = [g for g in groups if _varying(g, motion, lo)]
-    for f in range(n_f) if moving else ():
-        for i in range(n_t):
-            for li in range(n_l):
-                tc = float(chirp_times[f, i, li])
-                el = elements(radar, motion.position, motion.rot, motion.velocity, tc)
-                for g in moving:
-                    tau, amp, rate = pair_terms(g.at(tc), el, lam, rows=[i])
-                    lo_f = lo[f] if (lo is not None and g.strong) else None
-                    out[f, i, :, li] += render_rows(
-                        radar, tau + dtau[i][None, :, None], amp, rate, t, ramp, lo_f, tc)[0]
+    sets = [(s, lo is not None and s) for s in (True, False)]
+    for f, i, li in np.ndindex(n_f, n_t, n_l) if moving else ():
+        tc = float(chirp_times[f, i, li])
+        el = elements(radar, motion.position, motion.rot, motion.velocity, tc)
+        for strong, with_lo in sets:
+            sel = [g for g in moving if bool(g.strong) == strong]
+            if sel:
+                tau, amp, rate = _terms(sel, el, lam, [i], tc)
+                out[f, i, :, li] += render_rows(
+                    radar, tau + dtau[i][None, :, None], amp, rate, t, ramp,
+                    lo[f] if with_lo else None, tc)[0]
     return out

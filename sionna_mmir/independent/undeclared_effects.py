@@ -25,13 +25,21 @@ realistic for a TI MMWCAS cascade / AWR single chip):
                        ``|b2|, |b3|`` U(0.2, 0.6) MHz: 0.1-1 MHz VCO ramp
                        errors, 0.05-0.25 rad of beat phase at 8 m.
 ``phase_noise``        L(1 MHz) U(-90, -85) dBc/Hz, flat inside a 0.3-0.8
-                       MHz PLL loop, -20 dB/decade outside, floor -135 dBc/Hz
-                       (TI quotes -93 to -85 dBc/Hz at 1 MHz for 76-81 GHz).
+                       MHz PLL loop, -20 dB/decade outside, floor -135 dBc/Hz,
+                       offsets up to f_s / 2 (TI quotes -93 to -85 dBc/Hz at
+                       1 MHz for 76-81 GHz); one LO for all chips, a
+                       continuous process over the frame, applied exactly as
+                       ``Phi(t) - Phi(t - tau)`` to the strong paths (corners,
+                       walls, planted scatterers, coupling; the clutter's
+                       skirt is > 50 dB below it).
 ``coupling``           a direct antenna path ``(d0 + |tx - rx|) / c``,
-                       ``d0`` U(0.05, 0.15) m, and a radome bounce at
-                       ``2 U(0.15, 0.3) m / c``; same-chip level +3..+12 dB
-                       over the strongest corner, other chips 10-20 dB lower,
-                       separable factors times (1 + 0.25 CN(0, 1)) per channel.
+                       ``d0`` U(0.10, 0.25) m, and a radome bounce at
+                       ``2 U(0.15, 0.3) m / c`` (equivalent ranges 0.05-0.3
+                       m); same-chip level +3..+12 dB over the strongest
+                       corner (the leakage is the largest peak of a TI range
+                       profile), other chips 10-20 dB lower, separable factors
+                       times (1 + 0.25 CN(0, 1)) per channel, the second path
+                       3-9 dB below the first.
 ``if_filter``          TI's HPF1 {175, 235, 350} kHz, optionally HPF2 {350,
                        700} kHz (1st or 2nd order), per-Rx corner tolerance
                        N(0, 3 %); simulated with ``lfilter`` from the ramp
@@ -46,7 +54,16 @@ realistic for a TI MMWCAS cascade / AWR single chip):
 ``ego_motion``         radar moving U(0.5, 2) m/s along its boresight.
 ``moving_scatterer``   a person (0 dBsm) at 3-6 m walking 0.5-1.5 m/s.
 ``missing_scatterer``  an unmodelled 0-7 dBsm post at 2.5-7 m.
-``multipath_ghost``    a trihedral's floor bounce (double and mixed paths).
+``multipath_ghost``    a trihedral seen via the floor (image point across
+                       ``z = 0``): the double bounce with ``Gamma^2`` (TE
+                       Fresnel of concrete at the grazing angle times the
+                       roughness loss) and the aspect toward the radar's
+                       image, the two mixed paths with ``Gamma`` and the
+                       trihedral's bistatic loss.  The floor, not a side wall:
+                       a corner aimed at the radar sees the radar's image in
+                       a side wall 50-90 deg off its axis (no return), in the
+                       floor 15-30 deg off (-6 to -15 dB), so this is the
+                       ghost real corner-reflector captures show.
 =====================  =====================================================
 
 Outside the library: ``outside:interference`` (another FMCW radar) and
@@ -172,7 +189,7 @@ def draw_coupling(rng, ctx) -> dict:
     (``ctx.ref_amp``).
     """
     nt, nr, nc = ctx.num_tx, ctx.num_rx, ctx.num_chips
-    d0 = float(rng.uniform(0.05, 0.15))
+    d0 = float(rng.uniform(0.10, 0.25))
     r_bounce = float(rng.uniform(0.15, 0.30))
     level_db = float(rng.uniform(3, 12))
     cross_db = -rng.uniform(10, 20, (nc, nc))
