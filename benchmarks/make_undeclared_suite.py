@@ -53,7 +53,8 @@ def main(argv=None) -> int:
         print(f"{folder:45s} {dt:7.2f} s", flush=True)
     total = time.perf_counter() - t_all
     index = {"generator": "sionna_mmir.independent.undeclared", "subset": args.subset,
-             "seed": args.seed, "snr_db": args.snr_db, "frames": args.frames, "quantize": args.quantize,
+             "seed": args.seed, "snr_db": args.snr_db, "frames": args.frames,
+             "quantize": args.quantize,
              "library_effects": list(und.LIBRARY_EFFECTS),
              "outside_effects": list(und.OUTSIDE_EFFECTS), "total_s": round(total, 2),
              "cases": rows}

@@ -141,8 +141,8 @@ def test_03_per_pair_delays_are_exact():
     amp = np.sqrt(gain((q - tx) / d_t[:, None])[:, None] * gain((q - rx) / d_r[:, None])[None]
                   ) / (d_t[:, None] * d_r[None])
     np.testing.assert_allclose(np.abs(x[:, :, 1, 5]), amp, rtol=1e-5)
-    far = 2 * np.linalg.norm(q - r.position) - (r.tx_positions[:, None] + r.rx_positions[None]
-                                                ) @ ((q - r.position) / np.linalg.norm(q - r.position))
+    u = (q - r.position) / np.linalg.norm(q - r.position)
+    far = 2 * np.linalg.norm(q - r.position) - (r.tx_positions[:, None] + r.rx_positions[None]) @ u
     near_field = 2 * np.pi * r.start_frequency * np.abs(tau - far / C)
     assert near_field.max() > 0.05            # a plane-wave model would fail the check above
 

@@ -65,6 +65,10 @@ from .undeclared_adc import C0, Motion, RampError, elements, pair_terms, render,
 from .undeclared_io import write_coloradar_run
 from .undeclared_scene import RADAR_POSITION, build_scene
 
+__all__ = ["SuiteCase", "make_case", "suite", "iter_suite", "suite_kinds", "write_coloradar_run",
+           "coloradar_cascade", "parse_kind", "case_name", "LIBRARY_EFFECTS", "OUTSIDE_EFFECTS",
+           "SCENE_MISMATCH", "FULL_PAIRS", "FAST_KINDS", "NOISE_STD_COUNTS"]
+
 #: Library effects that can be planted (names of :mod:`sionna_mmir.effects.library`).
 LIBRARY_EFFECTS = ("missing_scatterer", "moving_scatterer", "multipath_ghost", "coupling",
                    "channel_gain", "delay_offset", "frequency_offset", "chirp_nonlinearity",
@@ -379,7 +383,7 @@ def _thermal(ctx: _Context, params: dict) -> np.ndarray:
 
 
 def _if_and_adc(ctx: _Context, params: dict, x, up: int, quantize: bool, info: dict):
-    """IF high-pass (at ``up`` f_s), thermal noise, coloured noise, ADC window, DC, clip, rounding."""
+    """IF high-pass (at ``up`` f_s), thermal and coloured noise, ADC window, DC, clip, rounding."""
     if "if_filter" in params:
         x = fx.apply_if_filter(x, params["if_filter"], up * ctx.radar.sample_rate)
     x = x[..., ::up] + _thermal(ctx, params)
@@ -499,7 +503,8 @@ def _setup(seed, radar, num_chirps, num_samples, snr_db, num_frames, num_clutter
     """Validated ``(_Context, snr_db)``."""
     snr = _check_snr(snr_db)
     for name, v in (("seed", seed), ("num_frames", num_frames)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (name == "num_frames"):
+        low = 1 if name == "num_frames" else 0
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
             raise InputValueError(f"make_case: {name} must be a non-negative integer "
                                   f"(num_frames >= 1), got {v!r}")
     if num_clutter is not None and (isinstance(num_clutter, bool)

@@ -77,7 +77,7 @@ import math
 import numpy as np
 from scipy import signal
 
-from .undeclared_adc import C0, FixedPaths, PointPaths, element_gain, elements
+from .undeclared_adc import C0, FixedPaths, PointPaths, element_gain
 from .undeclared_scene import coherent_factor, fresnel_te
 
 

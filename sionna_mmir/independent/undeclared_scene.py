@@ -87,7 +87,7 @@ def coherent_factor(material: str, freq_hz: float, cos_i) -> np.ndarray:
 
 @dataclasses.dataclass
 class Rect:
-    """A rectangle ``origin + a edge_u + b edge_v``, ``a, b in [0, 1]``; normal ``edge_u x edge_v``."""
+    """Rectangle ``origin + a edge_u + b edge_v``, ``a, b in [0, 1]``, normal ``edge_u x edge_v``."""
 
     name: str
     origin: np.ndarray
@@ -244,7 +244,8 @@ def segment_blocked(origin, points, triangles, eps: float = 1e-3) -> np.ndarray:
     if len(triangles) == 0:
         return np.zeros(points.shape[0], bool)
     d = points - origin                                        # [P, 3], t in [0, 1]
-    v0, e1, e2 = triangles[:, 0], triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]
+    v0 = triangles[:, 0]
+    e1, e2 = triangles[:, 1] - v0, triangles[:, 2] - v0
     h = np.cross(d[:, None, :], e2[None])                      # [P, F, 3]
     det = np.einsum("fk,pfk->pf", e1, h)
     ok = np.abs(det) > 1e-12
