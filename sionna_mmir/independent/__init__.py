@@ -1,0 +1,1 @@
+"""independent truths: code that shares nothing with the model it scores"""
