@@ -18,7 +18,7 @@ import numpy as np
 
 from ..radio_materials.fresnel import SPEED_OF_LIGHT
 from ..utils.backend import init_backend
-from .radar_paths import PathFactors, RadarPaths
+from .radar_paths import PathFactors, PathGeometry, RadarPaths
 
 init_backend()
 
@@ -72,12 +72,14 @@ def _compress(emissions):
             continue
         g = [gather3(f, idx) if i in (2, 3) else dr.gather(mi.Float, f, idx)
              for i, f in enumerate(e.fields())]
+        g.append(dr.gather(mi.UInt32, e.obj, idx))
         kept.append((g, e.depth, dr.width(idx)))
     return kept
 
 
 def _concat(kept):
-    """Concatenate the kept groups: seven fields, depth per path and ``P``."""
+    """Concatenate the kept groups: eight fields (the seven of an emission and
+    the first-hit object), depth per path and ``P``."""
     def cat(i):
         return dr.concat([k[0][i] for k in kept]) if len(kept) > 1 else kept[0][0][i]
 
@@ -85,7 +87,7 @@ def _concat(kept):
         return mi.Point3f(*(dr.concat([k[0][i][c] for k in kept]) if len(kept) > 1
                             else kept[0][0][i][c] for c in range(3)))
 
-    fields = [cat3(i) if i in (2, 3) else cat(i) for i in range(7)]
+    fields = [cat3(i) if i in (2, 3) else cat(i) for i in range(8)]
     depth = np.concatenate([np.full(k[2], k[1], dtype=np.int32) for k in kept])
     return fields, depth, sum(k[2] for k in kept)
 
@@ -100,7 +102,7 @@ def strongest(ctx, fields, P, min_rel_power) -> np.ndarray:
     which only moves paths within that of the threshold
     (:meth:`PathFactors.pruned` uses the mean over all pairs).
     """
-    C_re, C_im, X, X1, chain_t, chain, _ = fields
+    C_re, C_im, X, X1, chain_t, chain = fields[:6]
     with dr.suspend_grad():
         g_t, _ = element_legs(ctx.tx_w, dr.detach(X), dr.detach(chain_t), ctx.ptx, ctx.pose, 1, P)
         g_r, _ = element_legs(ctx.rx_w, dr.detach(X1), dr.detach(chain), ctx.prx, ctx.pose, 1, P)
@@ -113,11 +115,12 @@ def strongest(ctx, fields, P, min_rel_power) -> np.ndarray:
 
 def _select(fields, keep):
     idx = mi.UInt32(keep.astype(np.uint32))
-    return [gather3(f, idx) if i in (2, 3) else dr.gather(mi.Float, f, idx)
-            for i, f in enumerate(fields)]
+    return [gather3(f, idx) if i in (2, 3) else
+            dr.gather(mi.UInt32 if i == 7 else mi.Float, f, idx) for i, f in enumerate(fields)]
 
 
-def assemble(ctx, emissions, num_candidates: int, num_hits: int, moving: bool) -> RadarPaths:
+def assemble(ctx, emissions, num_candidates: int, num_hits: int, moving: bool,
+             object_names=()) -> RadarPaths:
     """Factorised :class:`RadarPaths` of the emitted paths.
 
     With ``options.min_rel_power > 0`` the paths weaker than that x the
@@ -134,7 +137,7 @@ def assemble(ctx, emissions, num_candidates: int, num_hits: int, moving: bool) -
         keep = strongest(ctx, fields, P, min_rel_power)
         if keep.size < P:
             fields, depth, P = _select(fields, keep), depth[keep], int(keep.size)
-    C_re, C_im, X, X1, chain_t, chain, rate = fields
+    C_re, C_im, X, X1, chain_t, chain, rate, obj = fields
     # per-Tx leg [T, P] and per-Rx leg [R, P]: sqrt(gain) / leg length, and lengths
     g_t, dt = element_legs(ctx.tx_w, X, chain_t, ctx.ptx, ctx.pose, T, P)
     g_r, L = element_legs(ctx.rx_w, X1, chain, ctx.prx, ctx.pose, R, P)
@@ -143,5 +146,6 @@ def assemble(ctx, emissions, num_candidates: int, num_hits: int, moving: bool) -
     factors = PathFactors(c_re=C_re, c_im=-C_im, g_t=g_t, tau_t=dt / SPEED_OF_LIGHT,
                           g_r=g_r, tau_r=L / SPEED_OF_LIGHT, rate=rate if moving else None,
                           shape=(T, R, P))
+    geometry = PathGeometry(X, X1, chain_t, chain, obj, list(object_names), ctx.tx_w, ctx.rx_w)
     return RadarPaths.from_factors(factors, depth=depth, num_candidates=num_candidates,
-                                   info={"hits": num_hits})
+                                   info={"hits": num_hits}, geometry=geometry)

@@ -145,6 +145,50 @@ class PathFactors:
                                                f.g_r, f.tau_r, f.rate)
 
 
+class PathGeometry:
+    """Where each path meets the array: the points its legs connect to.
+
+    The delay of path ``p`` between Tx ``t`` and Rx ``r`` is
+    ``(|x_tx[p] - tx_t| + chain_tx[p] + |x_rx[p] - rx_r| + chain_rx[p]) / c``
+    (``x_tx`` is the unfolded image point of a mirror chain), so the paths
+    can be re-evaluated for moved elements (a pose offset) without tracing.
+
+    Parameters
+    ----------
+    x_tx, x_rx : mi.Point3f
+        Tx-side and Rx-side connection points [m], scene frame.
+    chain_tx, chain_rx : mi.Float
+        Lengths added on each side [m].
+    objects : mi.UInt32
+        Object index of each path's first interaction.
+    object_names : list of str
+        Names of the object indices.
+    tx_w, rx_w : mi.Point3f
+        Element positions the paths were formed with [m].
+    """
+
+    def __init__(self, x_tx, x_rx, chain_tx, chain_rx, objects, object_names, tx_w, rx_w):
+        self._arrays = (x_tx, x_rx, chain_tx, chain_rx, objects, tx_w, rx_w)
+        self.object_names = list(object_names)
+        self._numpy = None
+
+    def numpy(self) -> dict:
+        """Detached float64 arrays: ``x_tx``, ``x_rx`` ``[P, 3]``, ``chain_tx``,
+        ``chain_rx`` ``[P]``, ``objects`` int ``[P]``, ``tx``, ``rx`` ``[T|R, 3]``."""
+        if self._numpy is None:
+            x_tx, x_rx, c_t, c_r, obj, tx_w, rx_w = self._arrays
+
+            def pts(v):
+                return np.stack([np.asarray(dr.detach(v[c]), dtype=np.float64)
+                                 for c in range(3)], axis=1)
+            self._numpy = {"x_tx": pts(x_tx), "x_rx": pts(x_rx),
+                           "chain_tx": np.asarray(dr.detach(c_t), dtype=np.float64),
+                           "chain_rx": np.asarray(dr.detach(c_r), dtype=np.float64),
+                           "objects": np.asarray(obj, dtype=np.int64),
+                           "tx": pts(tx_w), "rx": pts(rx_w)}
+        return self._numpy
+
+
 def _sum_rows(x, n: int, P: int):
     """``sum_i x[i * P + p]`` over ``i < n``: ``mi.Float`` [P] (AD)."""
     p = dr.arange(mi.UInt32, P)
@@ -177,7 +221,8 @@ class RadarPaths:
 
     def __init__(self, a_re=None, a_im=None, tau=None, tau_rate=None, shape=(0, 0, 0),
                  depth=None, num_candidates: int = 0, info: dict | None = None,
-                 samples: list | None = None, factors: PathFactors | None = None):
+                 samples: list | None = None, factors: PathFactors | None = None,
+                 geometry: PathGeometry | None = None):
         if factors is None and (a_re is None or a_im is None or tau is None):
             raise InputValueError("RadarPaths needs 'a_re', 'a_im' and 'tau', or 'factors'")
         self._flat = dict(a_re=a_re, a_im=a_im, tau=tau, tau_rate=tau_rate)
@@ -188,13 +233,16 @@ class RadarPaths:
         self.info = {} if info is None else info
         #: recorded discrete decisions, pass as ``samples=`` to replay them
         self.samples = samples
+        #: :class:`PathGeometry` of the paths (solver output), or ``None``
+        self.geometry = geometry
 
     @classmethod
     def from_factors(cls, factors: PathFactors, depth=None, num_candidates: int = 0,
-                     info: dict | None = None, samples=None) -> "RadarPaths":
+                     info: dict | None = None, samples=None,
+                     geometry: PathGeometry | None = None) -> "RadarPaths":
         """Paths held as :class:`PathFactors` (no ``[T, R, P]`` expansion)."""
         return cls(factors=factors, depth=depth, num_candidates=num_candidates, info=info,
-                   samples=samples)
+                   samples=samples, geometry=geometry)
 
     # ------------------------------------------------------- expanded fields
     def _get(self, name):

@@ -116,7 +116,7 @@ class RadarPathSolver(PathSolver):
                 break
             continuation.continue_paths(ctx, st, surf, depth)
         moving = opts.velocities is not None or opts.radar_velocity is not None
-        paths = assemble(ctx, emissions, N, K, moving)
+        paths = assemble(ctx, emissions, N, K, moving, object_names=ctx.geo.names)
         paths.samples = samples if samples is not None else (ctx.geo.record, ctx.tape.values)
         return paths
 
@@ -188,7 +188,7 @@ class RadarPathSolver(PathSolver):
             C_im += sc_im
         if depth == 1 or opts.scattering:   # (deeper coherent terms were added above)
             out.append(Emission(C_re, C_im, surf.x, st.x1, zeros(K), st.chain, conn.rate, depth,
-                                conn.ok))
+                                conn.ok, st.obj1))
         if opts.scattering and opts.reciprocal and depth > 1:
             out.append(scattered.reciprocal_emission(st, surf, conn, sc_re, sc_im, depth))
         return out
@@ -206,7 +206,8 @@ def _start_state(ctx, it, pdf) -> PathState:
     return PathState(it=it, E=Field(transverse(e_r, k0)), inv_p=dr.ones(mi.Float, K),
                      coh=dr.full(mi.Bool, True, K), beta=zeros(K), p_area=zeros(K),
                      chain=zeros(K), prev_p=cw_k, rate_chain=zeros(K), first_pdf=pdf, x1=x1,
-                     k0=k0, L0_det=L0_det, cw_k=cw_k, tri1=it.tri, x_img=x1, Lm=eye)
+                     k0=k0, L0_det=L0_det, cw_k=cw_k, tri1=it.tri, x_img=x1, Lm=eye,
+                     obj1=it.obj)
 
 
 def _pattern(spec):

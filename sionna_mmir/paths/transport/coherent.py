@@ -88,4 +88,4 @@ def coherent_emission(st, wr, wi, m, rate, depth: int) -> Emission:
     unfolded image of ``x1``, Rx leg to ``x1``, no chain lengths."""
     zero = zeros(st.width)
     return Emission(dr.select(m, wr, 0.0), dr.select(m, wi, 0.0), st.x_img, st.x1, zero, zero,
-                    rate, depth, m)
+                    rate, depth, m, st.obj1)

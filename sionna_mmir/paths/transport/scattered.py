@@ -58,4 +58,4 @@ def reciprocal_emission(st, surf, conn, sc_re, sc_im, depth: int) -> Emission:
     the Tx), added by reciprocity: legs swapped."""
     m = st.coh & conn.ok
     return Emission(dr.select(m, sc_re, 0.0), dr.select(m, sc_im, 0.0), st.x1, surf.x,
-                    st.chain, zeros(st.width), conn.rate, depth, m)
+                    st.chain, zeros(st.width), conn.rate, depth, m, st.obj1)

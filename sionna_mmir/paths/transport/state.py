@@ -118,6 +118,8 @@ class PathState:
         Image of ``x1`` through the chain's mirrors (unfolded chain).
     Lm : list of mi.Vector3f
         Columns of the linear part of the chain's mirror map.
+    obj1 : mi.UInt32
+        Object of the first interaction.
     """
 
     it: object
@@ -137,6 +139,7 @@ class PathState:
     tri1: tuple
     x_img: object
     Lm: list
+    obj1: object = None
     pending: tuple | None = None
 
     @property
@@ -228,6 +231,8 @@ class Emission:
         Interactions of these paths.
     mask : mi.Bool
         Lanes that contribute.
+    obj : mi.UInt32
+        Object of each path's first interaction (receiver side).
     """
 
     c_re: object
@@ -239,6 +244,7 @@ class Emission:
     rate: object
     depth: int
     mask: object
+    obj: object = None
 
     def fields(self) -> tuple:
         """The seven per-lane arrays, in the assembly's order."""
