@@ -26,6 +26,9 @@ class EffectContext:
     ``frame_period``  seconds between frames (0 when unknown / one frame)
     ``tx_chip``       ``[T]`` int, chip (LO / receive path group) of each Tx
     ``rx_chip``       ``[R]`` int, chip of each Rx
+    ``basis``         the base model split per object
+                      (:class:`~sionna_mmir.effects.scene_basis.SceneBasis`),
+                      for the scene-side effects; ``None`` without one
     ================  ========================================================
 
     The chip grouping defaults to the TI MMWCAS cascade (4 chips of 3 Tx and
@@ -37,6 +40,7 @@ class EffectContext:
     frame_period: float = 0.0
     tx_chip: np.ndarray = None
     rx_chip: np.ndarray = None
+    basis: object = None
 
     def __post_init__(self):
         T, R = self.radar.num_tx, self.radar.num_rx

@@ -66,9 +66,13 @@ class EffectModel:
     ==============  ==========================================================
     """
 
-    def __init__(self, ctx: EffectContext, measured, base):
+    def __init__(self, ctx: EffectContext, measured, base=None):
         self.ctx = ctx
         y = ctx.check(measured, "measured ADC")
+        if base is None:
+            if ctx.basis is None:
+                raise InputValueError("EffectModel: give a base model ADC or a scene basis")
+            base = np.broadcast_to(ctx.basis.total()[None], ctx.shape)
         b = ctx.check(base, "model ADC")
         self.scale = float(np.sqrt(np.mean(np.abs(y) ** 2)))
         if not self.scale > 0:
@@ -83,6 +87,12 @@ class EffectModel:
         self.Y_numpy = np.fft.fft(y, axis=-1, norm="ortho")
         self.Y = ops.tensor(self.Y_numpy)
         self.b_t = ops.tensor(self.b)
+        #: per-object base components (scaled like ``b``) when the context has a basis
+        self.basis_t = None
+        if ctx.basis is not None:
+            k = self.base_gain / self.scale
+            self.basis_t = [ops.tensor(np.broadcast_to(B[None], ctx.shape) * k)
+                            for B in ctx.basis.adc]
         r = y - self.b
         self.nuisance = Component(
             effect=None,
@@ -136,7 +146,7 @@ class EffectModel:
                                         for c in self.components):
             return ones
         gain = self.nuisance.values["gain"]
-        pre = self.b * complex(gain[0], gain[1])
+        pre = self.base_numpy() * complex(gain[0], gain[1])
         post = self.mean_variance_numpy()[0] if current is None else current
         if keep is not None:
             pre, post = pre * keep, post * keep
@@ -146,6 +156,15 @@ class EffectModel:
         mag = np.abs(h)
         ok = (den > 0) & (mag > 0.1 * np.median(mag[den > 0])) if np.any(den > 0) else den > 0
         return np.where(ok, h, ones)
+
+    @_one_thread
+    def base_numpy(self) -> np.ndarray:
+        """The base before the sensor chain (after scene-side effects), normalised units."""
+        if self.basis_t is None or not any(c.effect.kind == "basis" for c in self.components):
+            return self.b
+        order = sorted(range(len(self.components)), key=lambda i: self.components[i].effect.stage)
+        with dr.suspend_grad():
+            return ops.to_numpy(self._base(self._tensors(), order))
 
     def remove(self, comp: Component):
         self.components.remove(comp)
@@ -159,14 +178,30 @@ class EffectModel:
         return new
 
     # ------------------------------------------------------------- forward
+    def _base(self, tens: dict, order):
+        """The base before the sensor chain: ``b``, or the sum of the per-object
+        components after the scene-side (``kind = "basis"``) effects."""
+        scene = [i for i in order if self.components[i].effect.kind == "basis"]
+        if not scene or self.basis_t is None:
+            return self.b_t
+        B = list(self.basis_t)
+        for i in scene:
+            B = self.components[i].effect.apply_basis(B, _block(tens, i, self.components[i]),
+                                                      self.ctx)
+        out = B[0]
+        for b in B[1:]:
+            out = ops.cadd(out, b)
+        return out
+
     def _forward(self, tens: dict):
         """``(x, X, v)`` from tensors ``tens[(i, name)]`` (``i = -1`` nuisance)."""
         g = tens[(-1, "gain")]
         one = (1, 1, 1, 1, 1)
-        x = (ops.cmul(self.b_t, (ops.column(ops.view(g, (1, 2)), 0, one),
-                                 ops.column(ops.view(g, (1, 2)), 1, one)))
-             if self.has_base else ops.zeros_like(self.b_t))
         order = sorted(range(len(self.components)), key=lambda i: self.components[i].effect.stage)
+        b = self._base(tens, order)
+        x = (ops.cmul(b, (ops.column(ops.view(g, (1, 2)), 0, one),
+                          ops.column(ops.view(g, (1, 2)), 1, one)))
+             if self.has_base else ops.zeros_like(self.b_t))
         for i in order:
             c = self.components[i]
             if c.effect.kind == "mean":

@@ -226,8 +226,8 @@ def _rank_round(model, pool, trains, penalty, maxiter, progress, min_gain):
         return c.score > 0 and c.gain_per_sample >= min_gain
 
     ranking = []
-    for kind in ("mean", "variance"):
-        group = [c for c in pool if c.kind == kind]
+    for kinds in (("basis", "mean"), ("variance",)):
+        group = [c for c in pool if c.kind in kinds]
         if not group:
             continue
         ranking = sorted(ranking + rank_candidates(model, group, trains, penalty, maxiter,

@@ -1,0 +1,173 @@
+"""``SceneBasis``: a rendered scene split per object, the base of the effects model.
+
+The residual loop compares a capture with a rendered scene.  Real meshes
+never match the radar's scene exactly -- an object's reflectivity, its
+phase centre, the radar pose against the LiDAR frame are off -- and such a
+*scene mismatch* is organised per object: it changes one object's return on
+every channel, while a sensor effect changes every object's return alike.
+To let scene-side explanations compete with sensor effects, the base model
+is kept as one ADC per object (the strongest objects of the render; the rest
+summed into one more component)::
+
+    b[f, t, r, c, k] = sum_o B_o[t, r, c, k]
+
+with, for each component, the energy-weighted mean direction ``u_o`` from
+the array's phase centre to its paths and its mean range, so a scene-side
+effect can move it: a pose offset ``(d, w)`` (translation [m], small
+rotation [rad], scene frame) lengthens path ``o`` between Tx ``t`` and Rx
+``r`` by ``-u_o . (2 d + w x (e_t + e_r))`` (``e`` the elements' offsets
+from the phase centre), exactly for a compact object and to first order in
+the spread of its directions otherwise.
+
+Built by :meth:`SceneBasis.from_paths` from the solver's
+:class:`~sionna_mmir.paths.RadarPaths` (with their
+:class:`~sionna_mmir.paths.radar_paths.PathGeometry`).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..errors import InputValueError
+from ..fmcw.synthesize import synthesize_adc
+from ..radar.config import SPEED_OF_LIGHT
+
+#: name of the component that sums the objects not kept on their own
+REST = "rest"
+
+
+@dataclasses.dataclass
+class SceneBasis:
+    """Per-object ADC of a rendered scene.
+
+    Parameters
+    ----------
+    names : list of str
+        Component names (objects, and :data:`REST` for the others).
+    adc : numpy.ndarray
+        ``[K, T, R, C, N]`` complex128 ADC of each component (one frame).
+    directions : numpy.ndarray
+        ``[K, 3]`` unit mean direction from the array centre (scene frame).
+    ranges : numpy.ndarray
+        ``[K]`` energy-weighted mean range [m].
+    offsets_tx, offsets_rx : numpy.ndarray
+        ``[T, 3]`` / ``[R, 3]`` element offsets from the array centre (scene frame) [m].
+    rotation : numpy.ndarray
+        ``[3, 3]`` radar -> scene rotation (for reports in the radar frame).
+    shares : numpy.ndarray
+        ``[K]`` fraction of the render's energy in each component.
+    """
+
+    names: list
+    adc: np.ndarray
+    directions: np.ndarray
+    ranges: np.ndarray
+    offsets_tx: np.ndarray
+    offsets_rx: np.ndarray
+    rotation: np.ndarray
+    shares: np.ndarray
+
+    @property
+    def num_components(self) -> int:
+        """``K``."""
+        return len(self.names)
+
+    def total(self) -> np.ndarray:
+        """``sum_o B_o``, ``[T, R, C, N]``."""
+        return self.adc.sum(axis=0)
+
+    @classmethod
+    def from_paths(cls, paths, radar, max_objects: int = 8, min_share: float = 1e-3,
+                   rotation=None) -> "SceneBasis":
+        """Split rendered paths by the object of their first interaction.
+
+        Parameters
+        ----------
+        paths : RadarPaths
+            Solver output with its :attr:`~RadarPaths.geometry`.
+        radar : RadarConfig
+            The radar the paths were rendered for.
+        max_objects : int
+            Most objects kept as components of their own (strongest first).
+        min_share : float
+            Objects under this fraction of the render's energy join :data:`REST`.
+        rotation : array_like, optional
+            ``[3, 3]`` radar -> scene rotation (default from ``radar.orientation``).
+
+        Returns
+        -------
+        SceneBasis
+        """
+        if paths.geometry is None or paths.num_paths == 0:
+            raise InputValueError("SceneBasis: the render has no paths (no ray hits the scene)")
+        a, tau, rate = paths.numpy()
+        geo = paths.geometry.numpy()
+        parts = _object_adc(radar, a, tau, rate, geo["objects"], paths.geometry.object_names,
+                            min_share)
+        keep, rest = _choose(parts, max_objects, min_share)
+        centre = np.concatenate([geo["tx"], geo["rx"]]).mean(axis=0)
+        power = np.sum(np.abs(a) ** 2, axis=(0, 1))
+        total = sum(float(np.sum(np.abs(x) ** 2)) for _, _, x in parts)
+        adc, dirs, rngs, shares, names = [], [], [], [], []
+        groups = [(name, sel, x) for name, sel, x in keep]
+        if rest:
+            groups.append((REST, np.any([sel for _, sel, _ in rest], axis=0),
+                           sum(x for _, _, x in rest)))
+        for name, sel, x in groups:
+            d = geo["x_rx"][sel] - centre
+            dist = np.linalg.norm(d, axis=1)
+            w = power[sel] / max(power[sel].sum(), 1e-300)
+            u = (w[:, None] * d / np.maximum(dist, 1e-9)[:, None]).sum(axis=0)
+            names.append(name)
+            adc.append(x)
+            dirs.append(u / max(np.linalg.norm(u), 1e-12))
+            rngs.append(float(np.sum(w * dist)))
+            shares.append(float(np.sum(np.abs(x) ** 2)) / max(total, 1e-300))
+        if rotation is None:
+            from ..radar.config import rotation_matrix
+
+            rotation = rotation_matrix(radar.orientation)
+        return cls(names=names, adc=np.stack(adc).astype(np.complex128), directions=np.array(dirs),
+                   ranges=np.array(rngs), offsets_tx=geo["tx"] - centre,
+                   offsets_rx=geo["rx"] - centre, rotation=np.asarray(rotation, float),
+                   shares=np.array(shares))
+
+    # ----------------------------------------------------------- delay maps
+    def pose_delay_matrix(self) -> np.ndarray:
+        """``[K, T, R, 6]`` d(delay)/d(pose) [s per m | s per rad] of each component
+        and pair, for a pose offset ``(d_x, d_y, d_z, w_x, w_y, w_z)`` (scene frame)."""
+        u = self.directions                                    # [K, 3]
+        e = self.offsets_tx[:, None, :] + self.offsets_rx[None, :, :]  # [T, R, 3]
+        d_trans = np.broadcast_to(-2.0 * u[:, None, None, :],
+                                  (len(u),) + e.shape[:2] + (3,))
+        # -u . (w x e) = -w . (e x u)
+        d_rot = -np.cross(e[None], u[:, None, None, :])
+        return np.concatenate([d_trans, d_rot], axis=-1) / SPEED_OF_LIGHT
+
+
+def _object_adc(radar, a, tau, rate, objects, object_names, min_share):
+    """``[(name, path mask, ADC)]`` of every object with at least ``min_share``
+    of the render's path power / 100 (the others cannot matter coherently)."""
+    power = np.sum(np.abs(a) ** 2, axis=(0, 1))
+    total = float(power.sum())
+    if not total > 0:
+        raise InputValueError("SceneBasis: the render carries no power")
+    per = np.bincount(objects, weights=power, minlength=len(object_names))
+    out = []
+    for o in np.flatnonzero(per >= 1e-2 * min_share * total):
+        sel = objects == o
+        out.append((object_names[int(o)], sel,
+                    synthesize_adc(radar, a[..., sel], tau[..., sel],
+                                   None if rate is None else rate[..., sel])))
+    return out
+
+
+def _choose(parts, max_objects, min_share):
+    """Split ``parts`` into the components kept on their own (strongest by their
+    coherent ADC energy, at least ``min_share`` of the total) and the rest."""
+    energy = np.array([float(np.sum(np.abs(x) ** 2)) for _, _, x in parts])
+    order = np.argsort(energy)[::-1]
+    total = max(float(energy.sum()), 1e-300)
+    keep = [int(i) for i in order if energy[i] >= min_share * total][:max(int(max_objects), 1)]
+    return [parts[i] for i in keep], [parts[i] for i in range(len(parts)) if i not in keep]
