@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import bench_cmd, fit_cmd, render_cmd, residual_cmd
+from . import bench_cmd, fit_cmd, occupancy_cmd, render_cmd, residual_cmd
 
 EXIT_BAD_INPUT = 2
 
@@ -71,6 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit_cmd.add_parsers(sub)
     bench_cmd.add_parser(sub)
     residual_cmd.add_parser(sub)
+    occupancy_cmd.add_parser(sub)
     return parser
 
 
@@ -85,7 +86,7 @@ def main(argv=None) -> int:
                 "convert": commands.cmd_convert, "ra": commands.cmd_ra,
                 "synth": commands.cmd_synth, "render": render_cmd.cmd_render, "fit": fit_cmd.cmd_fit,
                 "compare": fit_cmd.cmd_compare, "bench": bench_cmd.cmd_bench,
-                "residual": residual_cmd.cmd_residual}
+                "residual": residual_cmd.cmd_residual, "occupancy": occupancy_cmd.cmd_occupancy}
     try:
         return int(handlers[args.command](args) or 0)
     except (SionnaMMIRError, FileNotFoundError, FileExistsError, IsADirectoryError,

@@ -97,3 +97,22 @@ def load_fitted_scene(meshes, checkpoint, *, materials: dict | None = None, rada
         setattr(obj, f"vertex_{field}", mi.TensorXf(mi.Float(a.ravel()), a.shape))
     scene.sync()
     return scene
+
+
+def prepared_meshes(paths: dict, *, denoise: bool = False, planes: bool = False,
+                    shading: str = "shared") -> dict:
+    """The fit command's meshes: ``paths`` (name -> PLY/OBJ) as is, or read and put
+    through :func:`~sionna_mmir.scene.prepare_scaffold` (``--denoise`` /
+    ``--planes`` / ``--shading`` other than ``shared``); returns a ``dict`` for
+    :func:`~sionna_mmir.scene.load_scene`."""
+    if not (denoise or planes or shading != "shared"):
+        return dict(paths)
+    import trimesh
+
+    from ..scene import prepare_scaffold, read_mesh
+
+    meshes = {}
+    for name, path in paths.items():
+        data = read_mesh(path)
+        meshes[name] = trimesh.Trimesh(data.vertices, data.faces, process=False)
+    return prepare_scaffold(meshes, denoise=denoise, planes=planes, shading=shading)

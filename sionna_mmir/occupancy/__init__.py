@@ -17,7 +17,8 @@ One stage per module:
 ``plot``            :func:`save_occupancy_figure` (3-D scatter PNG)
 ``pipeline``        :func:`occupancy`: render a dense array (single bounce),
                     RAE cube, point cloud, reference, metrics;
-                    :func:`extruded_baseline` for a near-1-D array
+                    :func:`extruded_baseline` for a near-1-D array,
+                    :func:`save_result` (PLY + JSON + PNG folder)
 ==================  ==========================================================
 
 The RAE cube itself is :func:`sionna_mmir.processing.rae.rae_cube`.  Frames:
@@ -30,7 +31,7 @@ from .gating import (ReferenceSet, beam_mask, line_of_sight, read_meshes, refere
                      sample_surface, voxel_of)
 from .metrics import METRIC_KEYS, nearest_distances, occupancy_metrics
 from .pipeline import (DENSE_RENDER, OccupancyResult, dense_cube, extruded_baseline, occupancy,
-                       posed, render_adc, score)
+                       posed, render_adc, save_result, score)
 from .plot import save_occupancy_figure
 from .ply import read_ply, write_ply
 from .point_cloud import (PointCloud, extract_point_cloud, normalised_intensity, radar_to_scene,
@@ -41,6 +42,6 @@ __all__ = [
     "dense_cube", "extract_point_cloud", "extruded_baseline", "line_of_sight",
     "nearest_distances", "normalised_intensity", "occupancy", "occupancy_metrics", "posed",
     "radar_to_scene", "read_meshes", "read_ply", "reference_points", "render_adc",
-    "sample_surface", "save_occupancy_figure", "scene_to_radar", "score", "voxel_of",
+    "sample_surface", "save_occupancy_figure", "save_result", "scene_to_radar", "score", "voxel_of",
     "write_ply",
 ]

@@ -169,7 +169,8 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
               min_intensity: float = DEFAULT_MIN_INTENSITY,
               dynamic_range_db: float = DEFAULT_DYNAMIC_RANGE_DB,
               points_per_m2: float = DEFAULT_POINTS_PER_M2, seed: int = 0,
-              line_of_sight: bool = True, progress: bool = False) -> OccupancyResult:
+              line_of_sight: bool = True, progress: bool = False,
+              source: str | None = None) -> OccupancyResult:
     """Single-frame 3-D occupancy of a (fitted) scene from a dense virtual array.
 
     ====================  ===================================================
@@ -194,6 +195,8 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
     ``seed``              sampling seed of the reference points
     ``line_of_sight``     keep only reference points seen from the radar
     ``progress``          tqdm bar over the stages
+    ``source``            name of the scene in error messages (default: its
+                          path(s))
     ====================  ===================================================
 
     Errors (:class:`~sionna_mmir.errors.SionnaMMIRError`): a radar without an
@@ -206,15 +209,15 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
     radar = posed(radar_dense, pose)
     check_elevation_aperture(radar)
     ref_meshes = read_meshes(mesh)
+    source = _label(scene) if source is None else source
     bar = tqdm(total=4, desc="occupancy", unit="stage", disable=not progress)
     try:
         bar.set_postfix_str("render + RAE")
         cube, timings = dense_cube(as_scene(scene, materials), radar, render_options=render_options,
-                                   n_azimuth=n_azimuth, n_elevation=n_elevation,
-                                   source=_label(scene))
+                                   n_azimuth=n_azimuth, n_elevation=n_elevation, source=source)
         bar.update()
         bar.set_postfix_str("point cloud")
-        with _prefixed(_label(scene)):
+        with _prefixed(source):
             cloud = extract_point_cloud(cube, radar.position, radar.orientation,
                                         percentile=percentile, dynamic_range_db=dynamic_range_db)
         bar.update()
@@ -238,3 +241,48 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
                 "min_intensity": min_intensity, "dynamic_range_db": dynamic_range_db,
                 "points_per_m2": points_per_m2, "seed": seed, "line_of_sight": line_of_sight}
     return OccupancyResult(cube, cloud, ref, metrics, radar, timings, settings)
+
+
+def save_result(result: OccupancyResult, folder, *, overwrite: bool = False, binary: bool = True,
+                title: str = "") -> dict:
+    """Write ``points.ply``, ``metrics.json`` and ``occupancy.png`` into ``folder``.
+
+    The files are written into ``<folder>.partial`` and the folder is renamed
+    into place at the end, so a failure leaves nothing at ``folder``; an
+    existing ``folder`` raises ``FileExistsError`` unless ``overwrite``.
+    Returns ``dict`` kind -> path.
+    """
+    import json
+    import shutil
+
+    from .plot import save_occupancy_figure
+    from .ply import write_ply
+
+    folder = os.fspath(folder)
+    if os.path.exists(folder) and not overwrite:
+        raise FileExistsError(f"{folder} exists; pass --overwrite to replace it")
+    tmp = folder + ".partial"
+    shutil.rmtree(tmp, ignore_errors=True)
+    os.makedirs(tmp)
+    try:
+        r = result.radar
+        write_ply(os.path.join(tmp, "points.ply"), result.cloud.points, result.cloud.intensity,
+                  binary=binary, comment=f"sionna_mmir occupancy, radar {r.name}, scene frame [m]")
+        info = {"metrics": result.metrics, "reference_counts": result.reference.counts,
+                "timings_s": result.timings, "settings": result.settings,
+                "radar": {"name": r.name, "position_m": np.asarray(r.position).tolist(),
+                          "orientation_rad": np.asarray(r.orientation).tolist()},
+                "cube_shape": list(result.cube.shape)}
+        with open(os.path.join(tmp, "metrics.json"), "w") as f:
+            json.dump(info, f, indent=1, default=float)
+        save_occupancy_figure(os.path.join(tmp, "occupancy.png"), {r.name: result.cloud},
+                              result.reference.points, r.position, r.orientation, title)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if os.path.exists(folder):
+        shutil.rmtree(folder)
+    os.replace(tmp, folder)
+    return {k: os.path.join(folder, f) for k, f in (("ply", "points.ply"),
+                                                    ("metrics", "metrics.json"),
+                                                    ("figure", "occupancy.png"))}
