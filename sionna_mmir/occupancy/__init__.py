@@ -8,7 +8,8 @@ One stage per module:
                     frame, normalised (log) intensity
 ``gating``          :func:`reference_points`: area-weighted samples of the
                     clean mesh kept by line of sight, the 0 dB beam limits,
-                    the polar voxel grid and the intensity gate (>= 0.1)
+                    the polar voxel grid and the intensity gate (>= 0.1);
+                    :func:`check_overlap` (mesh in the radar's view?)
 ``metrics``         :func:`occupancy_metrics`: precision, recall, F1,
                     accuracy, RMSE, Chamfer and relative Chamfer distance
                     (cKDTree, tau = 0.5 m)
@@ -27,8 +28,8 @@ points are metres in the scene frame; the radar frame is ``+x`` boresight,
 """
 from __future__ import annotations
 
-from .gating import (ReferenceSet, beam_mask, line_of_sight, read_meshes, reference_points,
-                     sample_surface, voxel_of)
+from .gating import (ReferenceSet, beam_mask, check_overlap, line_of_sight, read_meshes,
+                     reference_points, sample_surface, voxel_of)
 from .metrics import METRIC_KEYS, nearest_distances, occupancy_metrics
 from .pipeline import (DENSE_RENDER, OccupancyResult, dense_cube, extruded_baseline, occupancy,
                        posed, render_adc, save_result, score)
@@ -39,7 +40,7 @@ from .point_cloud import (PointCloud, extract_point_cloud, normalised_intensity,
 
 __all__ = [
     "DENSE_RENDER", "METRIC_KEYS", "OccupancyResult", "PointCloud", "ReferenceSet", "beam_mask",
-    "dense_cube", "extract_point_cloud", "extruded_baseline", "line_of_sight",
+    "check_overlap", "dense_cube", "extract_point_cloud", "extruded_baseline", "line_of_sight",
     "nearest_distances", "normalised_intensity", "occupancy", "occupancy_metrics", "posed",
     "radar_to_scene", "read_meshes", "read_ply", "reference_points", "render_adc",
     "sample_surface", "save_occupancy_figure", "save_result", "scene_to_radar", "score", "voxel_of",

@@ -152,6 +152,29 @@ def voxel_of(cube: RAECube, points_radar):
     return (i_r, i_a, i_e), ok_r & ok_a & ok_e & (u[:, 0] > 0)
 
 
+def check_overlap(meshes, radar, points_per_m2: float = 50.0, pattern=None,
+                  level_db: float = 0.0) -> int:
+    """Raise unless some of the meshes lies in ``radar``'s beam and unambiguous range.
+
+    A quick test before rendering: points sampled at ``points_per_m2``
+    (seed 0) are taken into the radar frame (``radar.position`` /
+    ``orientation``) and counted if inside the 0 dB beam (:func:`beam_mask`)
+    and closer than ``radar.max_range``.  Returns that count; zero raises
+    :class:`~sionna_mmir.errors.InputValueError` (mismatched frames).
+    """
+    data = meshes if isinstance(meshes, list) else read_meshes(meshes)
+    q = scene_to_radar(sample_surface(data, points_per_m2, 0), radar.position, radar.orientation)
+    r = np.linalg.norm(q, axis=1)
+    inside = beam_mask(q / np.maximum(r, 1e-12)[:, None], pattern, level_db) & (r < radar.max_range)
+    n = int(np.count_nonzero(inside))
+    if n == 0:
+        raise InputValueError(
+            f"mesh and radar frames do not overlap: none of the {len(q)} points sampled on the "
+            f"mesh lies in the radar's beam within {radar.max_range:.1f} m (radar at "
+            f"{np.round(np.asarray(radar.position, float), 3).tolist()})")
+    return n
+
+
 def reference_points(meshes, cube: RAECube, position, orientation, *,
                      points_per_m2: float = DEFAULT_POINTS_PER_M2, seed: int = 0,
                      min_intensity: float = DEFAULT_MIN_INTENSITY,

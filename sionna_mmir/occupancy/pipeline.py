@@ -29,7 +29,7 @@ from ..errors import InputValueError
 from ..processing.rae import (RAECube, bin_directions, check_elevation_aperture, elevation_bins,
                               extruded_cube, range_azimuth_map, rae_cube)
 from .gating import (DEFAULT_MIN_INTENSITY, DEFAULT_POINTS_PER_M2, ReferenceSet, beam_mask,
-                     read_meshes, reference_points)
+                     check_overlap, read_meshes, reference_points)
 from .metrics import DEFAULT_TAU, occupancy_metrics
 from .point_cloud import (DEFAULT_DYNAMIC_RANGE_DB, DEFAULT_PERCENTILE, PointCloud,
                           extract_point_cloud)
@@ -209,6 +209,8 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
     radar = posed(radar_dense, pose)
     check_elevation_aperture(radar)
     ref_meshes = read_meshes(mesh)
+    with _prefixed(_label(mesh)):
+        check_overlap(ref_meshes, radar)
     source = _label(scene) if source is None else source
     bar = tqdm(total=4, desc="occupancy", unit="stage", disable=not progress)
     try:
