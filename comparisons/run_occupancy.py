@@ -180,8 +180,12 @@ def _write(rows, details, args, wall_s):
 
 
 def _header(args, wall_s, dense_s):
+    from sionna_mmir.scenes import SCENES
+
     cmd = "python comparisons/run_occupancy.py" + (f" --fit --iterations {args.iterations}"
                                                    if args.fit else "")
+    cmd += "" if args.scenes == ",".join(SCENES) else f" --scenes {args.scenes}"
+    cmd += "" if args.stem == "occupancy" else f" --stem {args.stem}"
     scene = ("scaffold with mmIR materials fitted to the ground-truth capture "
              f"({args.iterations} iterations)" if args.fit else
              "scaffold (LiDAR-like, denoised, planes, auto shading) with the benchmark's "
@@ -203,6 +207,17 @@ mean; accuracy = matched points of both sets over all points of both sets; RMSE 
 root mean square nearest-neighbour distance pooled over both directions; R-CD =
 (mean_P d + mean_Q d) / 2 divided by the reference's bounding-box diagonal.
 Normalised intensity = clip(1 + 10 log10(P / P_max) / D, 0, 1), D = 60 dB.
+
+Caveats. The truth is gated by the dense cube itself (the paper's radar-guided
+filtering), and single-bounce rendering makes no multipath ghosts, so a dense point
+is unmatched only when it lies more than tau from every gated surface point:
+precision is close to 1 by construction, and recall, RMSE and R-CD carry the
+information. The truth is the exact clean geometry in the radar's frame (no LiDAR
+noise, time offset or misalignment), unlike the paper's single raw LiDAR frame of
+a real capture, so the absolute numbers are not comparable with the paper's; the
+ordering of the two methods is. The cascade baseline is rendered from the same
+scene (single bounce), not measured. Frame times were taken while other jobs
+shared the two cores (they vary by up to 2x from run to run).
 
 Paper, Table 4 (ColoRadar, real captures, 7 outdoor frames): mmIR 0.618 / 0.257 /
 0.352 / 0.360 / 1.642 m / 0.141, ColoRadar cascade extruded 0.319 / 0.083 / 0.129 /

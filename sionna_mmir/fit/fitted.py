@@ -28,14 +28,30 @@ _FIELDS = ("materials", "normals", "positions")
 
 def fitted_fields(latents: dict, scene, normals_smoothing: float = 0.0,
                   materials_smoothing: float = 0.0, source: str = "checkpoint") -> dict:
-    """Physical per-vertex fields of a fit: ``{(object, field): float64 [Nv, k]}``.
+    """Physical per-vertex fields of a fit.
 
-    ``latents``: the checkpoint's ``dict``; ``scene``: the
-    :class:`~sionna_mmir.scene.RadarScene` they belong to.  Smoothing
-    ``lambda``s must be the fit's (``--normals-smoothing`` /
-    ``--materials-smoothing``; 0 = raw per-vertex latents).  Unknown objects
-    and vertex-count mismatches raise
-    :class:`~sionna_mmir.errors.InputValueError` naming ``source``.
+    Parameters
+    ----------
+    latents : dict
+        The checkpoint's latents (name -> ndarray).
+    scene : RadarScene
+        The scene they belong to.
+    normals_smoothing, materials_smoothing : float, optional
+        The fit's Laplacian ``lambda``s (``--normals-smoothing`` /
+        ``--materials-smoothing``; 0 = raw per-vertex latents).
+    source : str, optional
+        Name of the checkpoint in error messages.
+
+    Returns
+    -------
+    dict
+        ``(object, field) -> ndarray of float64, shape (n_vertices, k)``:
+        ``materials`` (k = 6, physical), ``normals`` (3), ``positions`` (3, m).
+
+    Raises
+    ------
+    InputValueError
+        An object missing from the scene, or a vertex-count mismatch.
     """
     from .smooth_param import LaplacianParam
 
@@ -63,20 +79,31 @@ def fitted_fields(latents: dict, scene, normals_smoothing: float = 0.0,
 
 def load_fitted_scene(meshes, checkpoint, *, materials: dict | None = None, radar=None,
                       normals_smoothing: float = 0.0, materials_smoothing: float = 0.0):
-    """A :class:`~sionna_mmir.scene.RadarScene` with a fit's materials / normals / positions.
+    """A scene carrying a fit's materials, normals and positions.
 
-    ============================  ==============================================
-    ``meshes``                    as :func:`~sionna_mmir.scene.load_scene` (the
-                                  fit's meshes, prepared as for the fit)
-    ``checkpoint``                ``fit_mmir.h5``, or the ``fit --out`` folder
-    ``materials``                 nominal ITU materials per object (the
-                                  ``--material`` of the fit; sets the objects'
-                                  radio material, the per-vertex parameters are
-                                  the fit's)
-    ``radar``                     initial radar / pose of the scene
-    ``normals_smoothing``,        the fit's Laplacian ``lambda``s
-    ``materials_smoothing``
-    ============================  ==============================================
+    Parameters
+    ----------
+    meshes : str, trimesh.Trimesh or dict
+        As :func:`~sionna_mmir.scene.load_scene`: the fit's meshes, prepared as
+        for the fit (:func:`prepared_meshes`).
+    checkpoint : str or os.PathLike
+        ``fit_mmir.h5``, or the ``sionna-mmir fit --out`` folder holding it.
+    materials : dict, optional
+        Nominal ITU material per object (the fit's ``--material``; it sets the
+        objects' radio material, the per-vertex parameters are the fit's).
+    radar : RadarConfig, optional
+        Initial radar and pose of the scene.
+    normals_smoothing, materials_smoothing : float, optional
+        The fit's Laplacian ``lambda``s.
+
+    Returns
+    -------
+    RadarScene
+
+    Raises
+    ------
+    InputValueError
+        Missing or unreadable checkpoint, object or vertex-count mismatch.
     """
     import mitsuba as mi
 
@@ -101,10 +128,24 @@ def load_fitted_scene(meshes, checkpoint, *, materials: dict | None = None, rada
 
 def prepared_meshes(paths: dict, *, denoise: bool = False, planes: bool = False,
                     shading: str = "shared") -> dict:
-    """The fit command's meshes: ``paths`` (name -> PLY/OBJ) as is, or read and put
-    through :func:`~sionna_mmir.scene.prepare_scaffold` (``--denoise`` /
-    ``--planes`` / ``--shading`` other than ``shared``); returns a ``dict`` for
-    :func:`~sionna_mmir.scene.load_scene`."""
+    """The meshes as the fit command prepared them.
+
+    Parameters
+    ----------
+    paths : dict
+        Name -> PLY/OBJ path.
+    denoise, planes : bool, optional
+        The fit's ``--denoise`` / ``--planes``.
+    shading : str, optional
+        The fit's ``--shading`` (``shared``, ``flat`` or ``auto``).
+
+    Returns
+    -------
+    dict
+        ``paths`` itself when nothing is prepared, else name ->
+        ``trimesh.Trimesh`` from :func:`~sionna_mmir.scene.prepare_scaffold`;
+        input of :func:`~sionna_mmir.scene.load_scene`.
+    """
     if not (denoise or planes or shading != "shared"):
         return dict(paths)
     import trimesh

@@ -48,11 +48,13 @@ LOS_MARGIN_M = 2e-3
 class ReferenceSet:
     """Gated reference points.
 
-    ==========  ==========================================================
-    ``points``  float64 ``[n, 3]`` scene-frame points [m]
-    ``counts``  ``dict`` stage -> points left after it (``sampled``,
-                ``line_of_sight``, ``beam``, ``grid``, ``intensity``)
-    ==========  ==========================================================
+    Attributes
+    ----------
+    points : ndarray of float64, shape (n, 3)
+        Scene-frame points [m].
+    counts : dict
+        Stage -> points left after it: ``sampled``, ``line_of_sight``,
+        ``beam``, ``grid``, ``intensity``.
     """
 
     points: np.ndarray
@@ -60,9 +62,22 @@ class ReferenceSet:
 
 
 def read_meshes(meshes) -> list:
-    """Validated :class:`~sionna_mmir.scene.mesh_io.TriMeshData` list from a path,
-    ``trimesh.Trimesh`` or ``dict`` name -> either (``InputValueError`` naming the
-    file for an unreadable or empty mesh)."""
+    """Read and validate meshes.
+
+    Parameters
+    ----------
+    meshes : str, os.PathLike, trimesh.Trimesh or dict
+        A PLY/OBJ path, a mesh, or ``dict`` name -> either (scene frame, m).
+
+    Returns
+    -------
+    list of TriMeshData
+
+    Raises
+    ------
+    InputValueError
+        An unreadable or empty mesh (naming the file).
+    """
     from ..scene.mesh_io import read_mesh
 
     items = meshes.items() if isinstance(meshes, dict) else [(None, meshes)]
@@ -72,10 +87,21 @@ def read_meshes(meshes) -> list:
 
 def sample_surface(meshes, points_per_m2: float = DEFAULT_POINTS_PER_M2,
                    seed: int = 0) -> np.ndarray:
-    """Area-weighted uniform points on triangle meshes, float64 ``[n, 3]`` [m].
+    """Area-weighted uniform points on triangle meshes.
 
-    ``meshes``: list of ``TriMeshData`` (:func:`read_meshes`); ``n =
-    round(points_per_m2 * total area)`` (at least 1).
+    Parameters
+    ----------
+    meshes : list of TriMeshData
+        From :func:`read_meshes`.
+    points_per_m2 : float, optional
+        Density [1 / m^2]; ``n = round(points_per_m2 * total area)`` (>= 1).
+    seed : int, optional
+        Seed of the NumPy generator.
+
+    Returns
+    -------
+    ndarray of float64, shape (n, 3)
+        Points [m].
     """
     if not (np.isfinite(points_per_m2) and points_per_m2 > 0):
         raise InputValueError(f"points_per_m2 must be positive, got {points_per_m2!r}")
@@ -93,7 +119,23 @@ def sample_surface(meshes, points_per_m2: float = DEFAULT_POINTS_PER_M2,
 
 
 def line_of_sight(points, origin, meshes) -> np.ndarray:
-    """bool ``[n]``: the segment ``origin -> points[i]`` (less 2 mm) misses every mesh."""
+    """Line-of-sight test (Mitsuba ``ray_test``).
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Points [m].
+    origin : array_like, shape (3,)
+        Viewpoint [m].
+    meshes : list of TriMeshData
+        Occluders.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+        True where the segment ``origin -> points[i]``, stopped
+        :data:`LOS_MARGIN_M` short, misses every mesh.
+    """
     from ..scene.mesh_io import to_mitsuba_mesh
     from ..utils.backend import init_backend
 
@@ -113,11 +155,21 @@ def line_of_sight(points, origin, meshes) -> np.ndarray:
 
 
 def beam_mask(directions, pattern=None, level_db: float = 0.0) -> np.ndarray:
-    """bool ``[...]``: element power gain ``G(u) >= 10^(level_db / 10)`` (0 dBi default).
+    """Directions inside the element's beam limits: ``G(u) >= 10^(level_db / 10)``.
 
-    ``directions``: radar-frame unit vectors ``[..., 3]`` (NaN rows are
-    outside); ``pattern``: a :class:`~sionna_mmir.radio_devices.BeamPattern`
-    with one element (default ``CosinePowerPattern()``, the renderer's).
+    Parameters
+    ----------
+    directions : array_like, shape (..., 3)
+        Radar-frame unit vectors (rows with NaN are outside).
+    pattern : BeamPattern, optional
+        Element pattern with one element (default ``CosinePowerPattern()``,
+        the renderer's default).
+    level_db : float, optional
+        Gain limit [dBi] (0: the 0 dB beam limits).
+
+    Returns
+    -------
+    ndarray of bool, shape (...)
     """
     from ..radio_devices import CosinePowerPattern
 
@@ -139,9 +191,22 @@ def _nearest_bin(values, centres):
 
 
 def voxel_of(cube: RAECube, points_radar):
-    """``((i_r, i_a, i_e), inside)``: nearest voxel of radar-frame points ``[n, 3]``.
+    """Nearest voxel of radar-frame points.
 
-    Ranges and direction sines are measured from ``cube.origin_m``.
+    Parameters
+    ----------
+    cube : RAECube
+        The cube whose grid is used.
+    points_radar : array_like, shape (n, 3)
+        Radar-frame points [m]; ranges and direction sines are measured from
+        ``cube.origin_m``.
+
+    Returns
+    -------
+    index : tuple of three ndarray of int64, each shape (n,)
+        ``(i_range, i_azimuth, i_elevation)`` (clipped into the grid).
+    inside : ndarray of bool, shape (n,)
+        Within half a bin of the grid and in front of the radar.
     """
     q = np.asarray(points_radar, float) - cube.origin_m[None, :]
     r = np.linalg.norm(q, axis=1)
@@ -154,13 +219,32 @@ def voxel_of(cube: RAECube, points_radar):
 
 def check_overlap(meshes, radar, points_per_m2: float = 50.0, pattern=None,
                   level_db: float = 0.0) -> int:
-    """Raise unless some of the meshes lies in ``radar``'s beam and unambiguous range.
+    """Check, before rendering, that the meshes lie in the radar's view.
 
-    A quick test before rendering: points sampled at ``points_per_m2``
-    (seed 0) are taken into the radar frame (``radar.position`` /
-    ``orientation``) and counted if inside the 0 dB beam (:func:`beam_mask`)
-    and closer than ``radar.max_range``.  Returns that count; zero raises
-    :class:`~sionna_mmir.errors.InputValueError` (mismatched frames).
+    Points sampled at ``points_per_m2`` (seed 0) are taken into the radar
+    frame and counted if inside the beam (:func:`beam_mask`) and closer than
+    ``radar.max_range``.
+
+    Parameters
+    ----------
+    meshes : list of TriMeshData, or as :func:`read_meshes`
+        Scene-frame meshes.
+    radar : RadarConfig
+        Posed radar.
+    points_per_m2 : float, optional
+        Sampling density [1 / m^2].
+    pattern, level_db
+        As :func:`beam_mask`.
+
+    Returns
+    -------
+    int
+        The number of points in view.
+
+    Raises
+    ------
+    InputValueError
+        None in view: the mesh and radar frames do not overlap.
     """
     data = meshes if isinstance(meshes, list) else read_meshes(meshes)
     q = scene_to_radar(sample_surface(data, points_per_m2, 0), radar.position, radar.orientation)
@@ -183,17 +267,38 @@ def reference_points(meshes, cube: RAECube, position, orientation, *,
                      use_line_of_sight: bool = True) -> ReferenceSet:
     """Clean-mesh points the radar can see (module docstring, steps 0-4).
 
-    ===================  ==================================================
-    ``meshes``           path / ``trimesh.Trimesh`` / dict of them, or a list
-                         of ``TriMeshData``; scene frame [m]
-    ``cube``             the dense array's :class:`RAECube` (gate and grid)
-    ``position``         radar position ``[3]`` [m]
-    ``orientation``      radar ``(yaw, pitch, roll)`` [rad]
-    ===================  ==================================================
+    Parameters
+    ----------
+    meshes : list of TriMeshData, or as :func:`read_meshes`
+        Clean scene-frame meshes [m].
+    cube : RAECube
+        The dense array's cube (voxel grid and intensity gate).
+    position : array_like, shape (3,)
+        Radar position [m].
+    orientation : array_like, shape (3,)
+        Radar ``(yaw, pitch, roll)`` [rad].
+    points_per_m2 : float, optional
+        Sampling density [1 / m^2] (400).
+    seed : int, optional
+        Sampling seed.
+    min_intensity : float, optional
+        Gate on the voxel's normalised intensity (0.1).
+    dynamic_range_db : float, optional
+        Dynamic range of the normalised intensity [dB] (60).
+    pattern, level_db
+        Beam limits, as :func:`beam_mask` (0 dBi of the default element).
+    use_line_of_sight : bool, optional
+        Drop points hidden from the radar (default True).
 
-    Returns a :class:`ReferenceSet`.  When no sampled point lies in the beam
-    and the voxel grid, the mesh and the radar do not overlap:
-    :class:`~sionna_mmir.errors.InputValueError`.
+    Returns
+    -------
+    ReferenceSet
+
+    Raises
+    ------
+    InputValueError
+        No sampled point in the beam and voxel grid (mismatched frames), an
+        all-zero cube, or an unreadable mesh.
     """
     data = meshes if isinstance(meshes, list) else read_meshes(meshes)
     pts = sample_surface(data, points_per_m2, seed)

@@ -50,7 +50,20 @@ def _points(x, what):
 
 
 def nearest_distances(points, to) -> np.ndarray:
-    """Distance from each of ``points [n, 3]`` to its nearest neighbour in ``to [m, 3]`` [m]."""
+    """Nearest-neighbour distances (``scipy.spatial.cKDTree``).
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Query points [m].
+    to : array_like, shape (m, 3)
+        Points searched [m].
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+        Distance of each query point to its nearest neighbour in ``to`` [m].
+    """
     d, _ = cKDTree(np.asarray(to, float)).query(np.asarray(points, float), k=1)
     return np.asarray(d, dtype=np.float64)
 
@@ -59,17 +72,28 @@ def occupancy_metrics(predicted, reference, tau: float = DEFAULT_TAU,
                       scale: float | None = None) -> dict:
     """Precision, recall, F1, accuracy, RMSE, Chamfer and relative Chamfer distance.
 
-    ==============  ========================================================
-    ``predicted``   float ``[n, 3]`` predicted points [m]
-    ``reference``   float ``[m, 3]`` reference points [m]
-    ``tau``         match threshold [m] (0.5)
-    ``scale``       R-CD normaliser [m]; default the reference bounding-box
-                    diagonal
-    ==============  ========================================================
+    Parameters
+    ----------
+    predicted : array_like, shape (n, 3)
+        Predicted points [m].
+    reference : array_like, shape (m, 3)
+        Reference points [m].
+    tau : float, optional
+        Match threshold [m] (0.5).
+    scale : float, optional
+        R-CD normaliser [m]; default the reference bounding-box diagonal.
 
-    Returns ``dict`` with :data:`METRIC_KEYS` plus ``n_predicted``,
-    ``n_reference``, ``tau`` and ``scale`` (module docstring).  Empty sets
-    raise :class:`~sionna_mmir.errors.InputValueError`.
+    Returns
+    -------
+    dict
+        :data:`METRIC_KEYS` (``rmse`` and ``chamfer`` in m) plus
+        ``n_predicted``, ``n_reference``, ``tau`` and ``scale`` (module
+        docstring).
+
+    Raises
+    ------
+    InputValueError
+        An empty point set, a wrong shape, NaN / Inf, or ``tau <= 0``.
     """
     p, q = _points(predicted, "predicted"), _points(reference, "reference")
     if not (np.isfinite(tau) and tau > 0):

@@ -42,16 +42,23 @@ DENSE_RENDER = {"max_depth": 1, "sampling": "facets", "min_rel_power": 1e-5, "se
 class OccupancyResult:
     """Outcome of :func:`occupancy`.
 
-    =============  =========================================================
-    ``cube``       the dense array's :class:`~sionna_mmir.processing.rae.RAECube`
-    ``cloud``      :class:`~.point_cloud.PointCloud` (scene frame)
-    ``reference``  :class:`~.gating.ReferenceSet` from the clean mesh
-    ``metrics``    ``dict`` of :func:`~.metrics.occupancy_metrics`
-    ``radar``      the posed dense :class:`~sionna_mmir.radar.RadarConfig`
-    ``timings``    ``dict``: ``render_s`` (paths + ADC), ``rae_s``, ``frame_s``
-                   (their sum), ``reference_s``, ``metrics_s`` [s]
-    ``settings``   ``dict`` of the options used
-    =============  =========================================================
+    Attributes
+    ----------
+    cube : RAECube
+        The dense array's cube, shape (n_range, n_azimuth, n_elevation).
+    cloud : PointCloud
+        Radar points, scene frame [m].
+    reference : ReferenceSet
+        Gated points of the clean mesh, scene frame [m].
+    metrics : dict
+        :func:`~.metrics.occupancy_metrics` of ``cloud`` against ``reference``.
+    radar : RadarConfig
+        The posed dense radar.
+    timings : dict
+        ``render_s`` (paths + ADC), ``rae_s``, ``frame_s`` (their sum),
+        ``reference_s``, ``metrics_s`` [s].
+    settings : dict
+        The options used.
     """
 
     cube: RAECube
@@ -82,7 +89,7 @@ def _prefixed(label: str):
 
 
 def posed(radar, pose=None):
-    """``radar`` moved to ``pose = (position [3] m, orientation [3] rad)`` (or as is)."""
+    """``radar`` moved to ``pose = (position (3,) [m], orientation (3,) [rad])``; as is if None."""
     if pose is None:
         return radar
     position, orientation = pose
@@ -91,18 +98,34 @@ def posed(radar, pose=None):
 
 
 def as_scene(scene, materials: dict | None = None):
-    """A :class:`~sionna_mmir.scene.RadarScene`, loading meshes (path / dict) if needed."""
+    """A :class:`~sionna_mmir.scene.RadarScene`; meshes (path / dict) go through ``load_scene``."""
     from ..scene import RadarScene, load_scene
 
     return scene if isinstance(scene, RadarScene) else load_scene(scene, materials=materials)
 
 
 def render_adc(scene, radar, render_options: dict | None = None, source: str = "scene"):
-    """One frame of ADC (complex64 ``radar.adc_shape``) of ``scene`` seen by ``radar`` at its pose.
+    """One frame of ADC of ``scene`` seen by ``radar`` at its pose.
 
-    ``render_options`` update :data:`DENSE_RENDER`.  A scene that no ray from
-    the radar hits raises :class:`~sionna_mmir.errors.InputValueError`
-    ("empty point cloud").
+    Parameters
+    ----------
+    scene : RadarScene
+        The scene (its pose tensors are set to ``radar``'s).
+    radar : RadarConfig
+        Posed radar.
+    render_options : dict, optional
+        :class:`~sionna_mmir.paths.RadarPathSolver` options over :data:`DENSE_RENDER`.
+    source : str, optional
+        Name of the scene in error messages.
+
+    Returns
+    -------
+    ndarray of complex64, shape (n_tx, n_rx, n_chirps, n_samples)
+
+    Raises
+    ------
+    InputValueError
+        "empty point cloud": no ray from the radar hits the scene.
     """
     import mitsuba as mi
 
@@ -121,9 +144,23 @@ def render_adc(scene, radar, render_options: dict | None = None, source: str = "
 
 def dense_cube(scene, radar, *, render_options=None, n_azimuth: int = 127,
                n_elevation: int = 127, source: str = "scene"):
-    """Render ``radar`` (2-D array, posed) and form its RAE cube.
+    """Render a posed 2-D array and form its RAE cube.
 
-    Returns ``(cube, {"render_s", "rae_s", "frame_s"})``.
+    Parameters
+    ----------
+    scene : RadarScene
+    radar : RadarConfig
+        Posed radar with a 2-D aperture.
+    render_options, source
+        As :func:`render_adc`.
+    n_azimuth, n_elevation : int, optional
+        Angle FFT lengths (127).
+
+    Returns
+    -------
+    cube : RAECube
+    timings : dict
+        ``render_s``, ``rae_s``, ``frame_s`` [s].
     """
     check_elevation_aperture(radar)
     t0 = time.perf_counter()
@@ -139,11 +176,26 @@ def extruded_baseline(scene, radar, *, render_options=None, n_azimuth: int = 127
                       source: str = "scene") -> RAECube:
     """A near-1-D array's (the cascade's) RA map extruded over its elevation beam.
 
-    ``radar`` (posed) renders ``scene`` with the same options as the dense
-    array; the RA map of its azimuth row (``n_azimuth`` bins) is copied onto
-    the ``n_elevation`` elevation bins whose direction lies inside the
-    elements' 0 dB beam (:func:`~.gating.beam_mask` with ``pattern`` /
-    ``level_db``).
+    ``radar`` renders ``scene`` with the same options as the dense array; the
+    RA map of its azimuth row is copied onto the elevation bins whose
+    direction lies inside the elements' beam limits.
+
+    Parameters
+    ----------
+    scene : RadarScene
+    radar : RadarConfig
+        Posed radar (e.g. ``RadarConfig.mmwcas()``).
+    render_options, source
+        As :func:`render_adc`.
+    n_azimuth, n_elevation : int, optional
+        Azimuth FFT length and number of elevation bins (127).
+    pattern, level_db
+        Beam limits, as :func:`~.gating.beam_mask` (0 dBi).
+
+    Returns
+    -------
+    RAECube
+        Shape (n_range, n_azimuth, n_elevation), ``kind="extruded"``.
     """
     adc = render_adc(scene, radar, render_options, source)
     ra, ranges, az, origin = range_azimuth_map(adc, radar, n_azimuth=n_azimuth)
@@ -154,9 +206,21 @@ def extruded_baseline(scene, radar, *, render_options=None, n_azimuth: int = 127
 
 def score(cube: RAECube, reference: ReferenceSet, radar, *, percentile=DEFAULT_PERCENTILE,
           dynamic_range_db=DEFAULT_DYNAMIC_RANGE_DB, tau=DEFAULT_TAU):
-    """Point cloud of ``cube`` (``radar``'s pose) and its metrics against ``reference``.
+    """Point cloud of a cube and its metrics against a reference.
 
-    Returns ``(cloud, metrics)``.
+    Parameters
+    ----------
+    cube : RAECube
+    reference : ReferenceSet
+    radar : RadarConfig
+        The posed radar of ``cube``.
+    percentile, dynamic_range_db, tau
+        As :func:`occupancy`.
+
+    Returns
+    -------
+    cloud : PointCloud
+    metrics : dict
     """
     cloud = extract_point_cloud(cube, radar.position, radar.orientation, percentile=percentile,
                                 dynamic_range_db=dynamic_range_db)
@@ -173,36 +237,54 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
               source: str | None = None) -> OccupancyResult:
     """Single-frame 3-D occupancy of a (fitted) scene from a dense virtual array.
 
-    ====================  ===================================================
-    ``scene``             :class:`~sionna_mmir.scene.RadarScene` (e.g. from
-                          :func:`~sionna_mmir.fit.load_fitted_scene`) or meshes
-                          for :func:`~sionna_mmir.scene.load_scene`
-                          (``materials`` then apply)
-    ``radar_dense``       :class:`~sionna_mmir.radar.RadarConfig` with a 2-D
-                          virtual aperture, e.g. ``RadarConfig.dense(100, 100)``
-    ``mesh``              clean reference mesh(es): path, ``trimesh.Trimesh``
-                          or ``dict`` name -> either (scene frame, m)
-    ``pose``              ``(position [3] m, orientation (yaw, pitch, roll)
-                          rad)``; default ``radar_dense``'s own
-    ``render_options``    solver options over :data:`DENSE_RENDER`
-    ``n_azimuth``,        angle FFT lengths (127 x 127)
-    ``n_elevation``
-    ``percentile``        point-cloud threshold (99.9)
-    ``tau``               match threshold [m] (0.5)
-    ``min_intensity``     reference gate on the normalised intensity (0.1)
-    ``dynamic_range_db``  dynamic range of the normalised intensity (60 dB)
-    ``points_per_m2``     clean-mesh sampling density (400 / m^2)
-    ``seed``              sampling seed of the reference points
-    ``line_of_sight``     keep only reference points seen from the radar
-    ``progress``          tqdm bar over the stages
-    ``source``            name of the scene in error messages (default: its
-                          path(s))
-    ====================  ===================================================
+    Parameters
+    ----------
+    scene : RadarScene, str, trimesh.Trimesh or dict
+        The scene (e.g. :func:`~sionna_mmir.fit.load_fitted_scene`), or meshes
+        for :func:`~sionna_mmir.scene.load_scene` (with ``materials``).
+    radar_dense : RadarConfig
+        Radar with a 2-D virtual aperture, e.g. ``RadarConfig.dense(100, 100)``.
+    mesh : str, trimesh.Trimesh or dict
+        Clean reference mesh(es), scene frame [m].
+    pose : tuple, optional
+        ``(position (3,) [m], orientation (yaw, pitch, roll) (3,) [rad])``;
+        default ``radar_dense``'s own.
+    materials : dict, optional
+        ITU material per object when ``scene`` is meshes.
+    render_options : dict, optional
+        Solver options over :data:`DENSE_RENDER` (single bounce).
+    n_azimuth, n_elevation : int, optional
+        Angle FFT lengths (127 x 127).
+    percentile : float, optional
+        Point-cloud threshold percentile (99.9).
+    tau : float, optional
+        Match threshold [m] (0.5).
+    min_intensity : float, optional
+        Reference gate on the normalised intensity (0.1).
+    dynamic_range_db : float, optional
+        Dynamic range of the normalised intensity [dB] (60).
+    points_per_m2 : float, optional
+        Clean-mesh sampling density [1 / m^2] (400).
+    seed : int, optional
+        Sampling seed of the reference points.
+    line_of_sight : bool, optional
+        Keep only reference points seen from the radar (True).
+    progress : bool, optional
+        tqdm bar over the stages.
+    source : str, optional
+        Name of the scene in error messages (default: its path(s)).
 
-    Errors (:class:`~sionna_mmir.errors.SionnaMMIRError`): a radar without an
-    elevation aperture, an unreadable mesh, a scene the radar does not see
-    (empty point cloud), a reference mesh outside the radar's field of view
-    (mismatched frames).
+    Returns
+    -------
+    OccupancyResult
+
+    Raises
+    ------
+    ConfigError
+        ``radar_dense`` has no elevation aperture (a 1-D array).
+    InputValueError
+        An unreadable mesh; a reference mesh outside the radar's view
+        (mismatched frames); a scene the radar does not see (empty point cloud).
     """
     from tqdm import tqdm
 
@@ -247,12 +329,32 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
 
 def save_result(result: OccupancyResult, folder, *, overwrite: bool = False, binary: bool = True,
                 title: str = "") -> dict:
-    """Write ``points.ply``, ``metrics.json`` and ``occupancy.png`` into ``folder``.
+    """Write ``points.ply``, ``metrics.json`` and ``occupancy.png`` into a folder.
 
-    The files are written into ``<folder>.partial`` and the folder is renamed
-    into place at the end, so a failure leaves nothing at ``folder``; an
-    existing ``folder`` raises ``FileExistsError`` unless ``overwrite``.
-    Returns ``dict`` kind -> path.
+    The files are written into ``<folder>.partial``, renamed into place at
+    the end, so a failure leaves nothing at ``folder``.
+
+    Parameters
+    ----------
+    result : OccupancyResult
+    folder : str or os.PathLike
+        Output folder.
+    overwrite : bool, optional
+        Replace an existing folder.
+    binary : bool, optional
+        Binary (default) or ASCII PLY.
+    title : str, optional
+        Picture title.
+
+    Returns
+    -------
+    dict
+        ``"ply"``, ``"metrics"``, ``"figure"`` -> path.
+
+    Raises
+    ------
+    FileExistsError
+        ``folder`` exists and not ``overwrite``.
     """
     import json
     import shutil

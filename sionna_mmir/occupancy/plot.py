@@ -16,7 +16,7 @@ def _draw(ax, cloud, reference, position, orientation, title, extent):
     ref = np.asarray(reference, float)
     if len(ref) > MAX_REFERENCE_DRAWN:
         ref = ref[np.random.default_rng(0).choice(len(ref), MAX_REFERENCE_DRAWN, replace=False)]
-    ax.scatter(ref[:, 0], ref[:, 1], ref[:, 2], s=0.3, c="0.6", alpha=0.35, linewidths=0,
+    ax.scatter(ref[:, 0], ref[:, 1], ref[:, 2], s=0.6, c="0.45", alpha=0.5, linewidths=0,
                label="reference (clean mesh)")
     if cloud is not None and len(cloud):
         sc = ax.scatter(cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2], s=1.5,
@@ -41,16 +41,23 @@ def _draw(ax, cloud, reference, position, orientation, title, extent):
 
 def save_occupancy_figure(path, panels: dict, reference, position, orientation,
                           title: str = "") -> None:
-    """Write a PNG with one 3-D panel per point cloud.
+    """Write a PNG with one 3-D scatter panel per point cloud (atomically).
 
-    ============  ==========================================================
-    ``path``      output PNG (written atomically)
-    ``panels``    ``dict`` label -> :class:`~.point_cloud.PointCloud` (or
-                  ``None`` for the reference alone)
-    ``reference`` float ``[m, 3]`` reference points [m] (grey)
-    ``position``  radar position ``[3]`` [m] (red dot)
-    ``orientation`` radar ``(yaw, pitch, roll)`` [rad] (green boresight arrow)
-    ============  ==========================================================
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output PNG.
+    panels : dict
+        Label -> :class:`~.point_cloud.PointCloud` (coloured by intensity),
+        or None for the reference alone.
+    reference : array_like, shape (m, 3)
+        Reference points [m] (grey).
+    position : array_like, shape (3,)
+        Radar position [m] (red dot).
+    orientation : array_like, shape (3,)
+        Radar ``(yaw, pitch, roll)`` [rad] (green boresight arrow).
+    title : str, optional
+        Figure title.
     """
     ref = np.asarray(reference, float).reshape(-1, 3)
     pts = [ref, np.asarray(position, float).reshape(1, 3)]

@@ -33,10 +33,25 @@ _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2
 
 
 def write_ply(path, points, intensity=None, *, binary: bool = True, comment: str = "") -> None:
-    """Write points ``[n, 3]`` [m] and ``intensity [n]`` (default 1) to ``path``.
+    """Write a PLY point cloud (atomically).
 
-    An empty or non-finite point set raises
-    :class:`~sionna_mmir.errors.InputValueError` and writes nothing.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    points : array_like, shape (n, 3)
+        Positions [m].
+    intensity : array_like, shape (n,), optional
+        Normalised intensity (default 1).
+    binary : bool, optional
+        Binary little endian (default) or ASCII.
+    comment : str, optional
+        Header comment lines.
+
+    Raises
+    ------
+    InputValueError
+        An empty point set, wrong shapes or non-finite values (nothing is written).
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
@@ -88,10 +103,24 @@ def _header(f, path):
 
 
 def read_ply(path):
-    """Read a PLY point cloud -> ``(points float64 [n, 3], intensity float64 [n])``.
+    """Read a PLY point cloud.
 
-    Unreadable files, unsupported layouts and truncated data raise
-    :class:`~sionna_mmir.errors.InputValueError` naming ``path``.
+    Parameters
+    ----------
+    path : str
+        PLY file (layout in the module docstring).
+
+    Returns
+    -------
+    points : ndarray of float64, shape (n, 3)
+        Positions [m].
+    intensity : ndarray of float64, shape (n,)
+        The ``intensity`` property, NaN when absent.
+
+    Raises
+    ------
+    InputValueError
+        Missing or unreadable file, unsupported layout, truncated data.
     """
     if not os.path.isfile(path):
         raise InputValueError(f"{path}: file does not exist")

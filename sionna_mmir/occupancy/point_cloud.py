@@ -40,13 +40,16 @@ DEFAULT_DYNAMIC_RANGE_DB = 60.0
 class PointCloud:
     """Points with a normalised intensity.
 
-    =============  ========================================================
-    ``points``     float64 ``[n, 3]`` scene-frame positions [m]
-    ``intensity``  float64 ``[n]`` normalised intensity in ``[0, 1]``
-    ``voxels``     int64 ``[n, 3]`` ``(range, azimuth, elevation)`` bin of
-                   each point (``-1`` when not from a cube)
-    ``threshold``  power threshold used (cube units; NaN when not from a cube)
-    =============  ========================================================
+    Attributes
+    ----------
+    points : ndarray of float64, shape (n, 3)
+        Scene-frame positions [m].
+    intensity : ndarray of float64, shape (n,)
+        Normalised intensity in [0, 1] (:func:`normalised_intensity`).
+    voxels : ndarray of int64, shape (n, 3)
+        ``(range, azimuth, elevation)`` bin of each point.
+    threshold : float
+        Power threshold used (cube units).
     """
 
     points: np.ndarray
@@ -59,20 +62,48 @@ class PointCloud:
 
 
 def radar_to_scene(points_radar, position, orientation) -> np.ndarray:
-    """Radar-frame points ``[n, 3]`` -> scene frame: ``position + R p`` [m]."""
+    """Radar frame -> scene frame: ``position + R p``.
+
+    Parameters
+    ----------
+    points_radar : array_like, shape (n, 3) or (3,)
+        Radar-frame points [m].
+    position : array_like, shape (3,)
+        Radar position in the scene [m].
+    orientation : array_like, shape (3,)
+        Radar ``(yaw, pitch, roll)`` [rad], ``R = Rz Ry Rx``.
+
+    Returns
+    -------
+    ndarray of float64, shape (n, 3)
+    """
     p = np.asarray(points_radar, dtype=np.float64).reshape(-1, 3)
     return np.asarray(position, float).reshape(1, 3) + p @ rotation_matrix(orientation).T
 
 
 def scene_to_radar(points_scene, position, orientation) -> np.ndarray:
-    """Scene-frame points ``[n, 3]`` -> radar frame: ``R^T (p - position)`` [m]."""
+    """Scene frame -> radar frame: ``R^T (p - position)``; arguments as :func:`radar_to_scene`."""
     p = np.asarray(points_scene, dtype=np.float64).reshape(-1, 3)
     return (p - np.asarray(position, float).reshape(1, 3)) @ rotation_matrix(orientation)
 
 
 def normalised_intensity(power, peak: float,
                          dynamic_range_db: float = DEFAULT_DYNAMIC_RANGE_DB) -> np.ndarray:
-    """``clip(1 + 10 log10(power / peak) / D, 0, 1)``, float64 (see module docstring)."""
+    """``clip(1 + 10 log10(power / peak) / D, 0, 1)`` (module docstring).
+
+    Parameters
+    ----------
+    power : array_like
+        Voxel powers (cube units).
+    peak : float
+        The cube's largest power.
+    dynamic_range_db : float, optional
+        ``D`` [dB] (60).
+
+    Returns
+    -------
+    ndarray of float64, shape of ``power``
+    """
     if not (np.isfinite(dynamic_range_db) and dynamic_range_db > 0):
         raise InputValueError(f"dynamic_range_db must be positive, got {dynamic_range_db!r}")
     p = np.asarray(power, dtype=np.float64)
@@ -86,17 +117,27 @@ def extract_point_cloud(cube: RAECube, position, orientation, *,
                         dynamic_range_db: float = DEFAULT_DYNAMIC_RANGE_DB) -> PointCloud:
     """Voxels at or above the ``percentile``-th power percentile as scene points.
 
-    ===================  ==================================================
-    ``cube``             :class:`~sionna_mmir.processing.rae.RAECube`
-    ``position``         radar position in the scene ``[3]`` [m]
-    ``orientation``      radar ``(yaw, pitch, roll)`` [rad]
-    ``percentile``       threshold percentile over the visible voxels (99.9)
-    ``dynamic_range_db`` dynamic range of the normalised intensity (60 dB)
-    ===================  ==================================================
+    Parameters
+    ----------
+    cube : RAECube
+        The cube (:mod:`sionna_mmir.processing.rae`).
+    position : array_like, shape (3,)
+        Radar position in the scene [m].
+    orientation : array_like, shape (3,)
+        Radar ``(yaw, pitch, roll)`` [rad].
+    percentile : float, optional
+        Threshold percentile over the visible voxels (99.9).
+    dynamic_range_db : float, optional
+        Dynamic range of the normalised intensity [dB] (60).
 
-    Returns a :class:`PointCloud`.  A cube without any return (all zero, or
-    NaN / Inf) raises :class:`~sionna_mmir.errors.InputValueError`
-    ("empty point cloud").
+    Returns
+    -------
+    PointCloud
+
+    Raises
+    ------
+    InputValueError
+        "empty point cloud": the cube holds no return (all zero) or NaN / Inf.
     """
     if not 0.0 <= float(percentile) < 100.0:
         raise InputValueError(f"percentile must be in [0, 100), got {percentile!r}")

@@ -48,16 +48,21 @@ MIN_FILLED_FRACTION = 0.5
 class RAECube:
     """A range-azimuth-elevation power cube and its axes.
 
-    ==================  ======================================================
-    ``power``           float32 ``[n_range, n_azimuth, n_elevation]``, squared
-                        FFT magnitude (0 in the invisible region)
-    ``ranges_m``        float64 ``[n_range]`` bin centres [m]
-    ``azimuths_rad``    float64 ``[n_azimuth]`` ``arcsin(u_y)`` [rad], increasing
-    ``elevations_rad``  float64 ``[n_elevation]`` ``arcsin(u_z)`` [rad], increasing
-    ``origin_m``        float64 ``[3]`` radar-frame point the ranges and angles
-                        are measured from (the aperture's phase centre) [m]
-    ``kind``            ``"2d-fft"`` (:func:`rae_cube`) or ``"extruded"``
-    ==================  ======================================================
+    Attributes
+    ----------
+    power : ndarray of float32, shape (n_range, n_azimuth, n_elevation)
+        Squared FFT magnitude; 0 in the invisible region.
+    ranges_m : ndarray of float64, shape (n_range,)
+        Range bin centres [m].
+    azimuths_rad : ndarray of float64, shape (n_azimuth,)
+        ``arcsin(u_y)`` of the azimuth bins [rad], increasing (+ = left).
+    elevations_rad : ndarray of float64, shape (n_elevation,)
+        ``arcsin(u_z)`` of the elevation bins [rad], increasing (+ = up).
+    origin_m : ndarray of float64, shape (3,)
+        Radar-frame point the ranges and angles are measured from (the
+        aperture's phase centre) [m].
+    kind : str
+        ``"2d-fft"`` (:func:`rae_cube`) or ``"extruded"`` (:func:`extruded_cube`).
     """
 
     power: np.ndarray
@@ -69,22 +74,34 @@ class RAECube:
 
     @property
     def shape(self) -> tuple:
+        """``(n_range, n_azimuth, n_elevation)``."""
         return tuple(self.power.shape)
 
     @property
     def visible(self) -> np.ndarray:
-        """bool ``[n_azimuth, n_elevation]``: ``u_y^2 + u_z^2 <= 1``."""
+        """ndarray of bool, shape (n_azimuth, n_elevation): ``u_y^2 + u_z^2 <= 1``."""
         uy, uz = np.sin(self.azimuths_rad), np.sin(self.elevations_rad)
         return uy[:, None] ** 2 + uz[None, :] ** 2 <= 1.0
 
     def directions(self) -> np.ndarray:
-        """Unit directions of the angle bins (:func:`bin_directions`), ``[n_az, n_el, 3]``."""
+        """Radar-frame unit directions of the angle bins, shape (n_azimuth, n_elevation, 3).
+
+        See :func:`bin_directions`; NaN in the invisible region.
+        """
         return bin_directions(self.azimuths_rad, self.elevations_rad)
 
     def voxel_centres(self, index) -> np.ndarray:
-        """Radar-frame positions [m] of voxels ``index = (i_r, i_a, i_e)`` (int arrays).
+        """Radar-frame positions of voxels.
 
-        Returns float64 ``[n, 3]`` = ``origin + r u``.
+        Parameters
+        ----------
+        index : tuple of three int arrays, each shape (n,)
+            ``(i_range, i_azimuth, i_elevation)`` of the voxels.
+
+        Returns
+        -------
+        ndarray of float64, shape (n, 3)
+            ``origin_m + r u`` [m].
         """
         i_r, i_a, i_e = (np.asarray(i, dtype=np.int64).ravel() for i in index)
         u = self.directions()[i_a, i_e]
@@ -92,11 +109,19 @@ class RAECube:
 
 
 def bin_directions(azimuths_rad, elevations_rad) -> np.ndarray:
-    """Radar-frame unit directions ``(sqrt(1 - u_y^2 - u_z^2), u_y, u_z)`` of angle bins.
+    """Radar-frame unit directions of angle bins.
 
-    ``u_y = sin(azimuths_rad)`` ``[n_az]``, ``u_z = sin(elevations_rad)``
-    ``[n_el]``; returns float64 ``[n_az, n_el, 3]``, NaN where ``u_y^2 +
-    u_z^2 > 1`` (invisible).
+    Parameters
+    ----------
+    azimuths_rad : array_like, shape (n_azimuth,)
+        ``arcsin(u_y)`` of the azimuth bins [rad].
+    elevations_rad : array_like, shape (n_elevation,)
+        ``arcsin(u_z)`` of the elevation bins [rad].
+
+    Returns
+    -------
+    ndarray of float64, shape (n_azimuth, n_elevation, 3)
+        ``(sqrt(1 - u_y^2 - u_z^2), u_y, u_z)``; NaN where ``u_y^2 + u_z^2 > 1``.
     """
     uy = np.sin(np.asarray(azimuths_rad, float))[:, None]
     uz = np.sin(np.asarray(elevations_rad, float))[None, :]
@@ -106,12 +131,27 @@ def bin_directions(azimuths_rad, elevations_rad) -> np.ndarray:
 
 
 def check_elevation_aperture(radar: RadarConfig, va: VirtualArray | None = None) -> VirtualArray:
-    """Return the :class:`VirtualArray` of ``radar`` if it resolves elevation.
+    """The virtual array of ``radar`` if it resolves elevation.
 
     A radar resolves elevation here when its virtual grid has at least two
     elevation rows and elements on at least :data:`MIN_FILLED_FRACTION` of the
-    grid's bounding box.  Otherwise (a 1-D array, or the cascade's 4 sparse
-    rows) :class:`~sionna_mmir.errors.ConfigError` is raised.
+    grid's bounding box.
+
+    Parameters
+    ----------
+    radar : RadarConfig
+        The radar.
+    va : VirtualArray, optional
+        Its prebuilt virtual array.
+
+    Returns
+    -------
+    VirtualArray
+
+    Raises
+    ------
+    ConfigError
+        For a 1-D array or a sparse elevation aperture (the cascade's 4 rows).
     """
     va = VirtualArray(radar) if va is None else va
     filled = va.num_unique / float(va.n_el * va.n_az)
@@ -134,19 +174,32 @@ def rae_cube(adc, radar: RadarConfig, *, n_azimuth: int = 127, n_elevation: int 
              n_range: int | None = None, window="hann") -> RAECube:
     """RAE power cube of one frame from a 2-D virtual array.
 
-    ===============  ======================================================
-    ``adc``          complex ``[tx, rx, chirp, sample]`` (``radar.adc_shape``)
-    ``radar``        :class:`~sionna_mmir.radar.RadarConfig` with a filled
-                     2-D virtual aperture (:func:`check_elevation_aperture`)
-    ``n_azimuth``    azimuth FFT length (127: bins symmetric about boresight)
-    ``n_elevation``  elevation FFT length (127)
-    ``n_range``      range FFT length (default ``num_samples``)
-    ``window``       window of the range, azimuth and elevation FFTs
-    ===============  ======================================================
+    Parameters
+    ----------
+    adc : ndarray of complex, shape (n_tx, n_rx, n_chirps, n_samples)
+        Raw ADC of one frame (``radar.adc_shape``); chirps are averaged
+        coherently (static scene).
+    radar : RadarConfig
+        Radar with a filled 2-D virtual aperture (:func:`check_elevation_aperture`).
+    n_azimuth, n_elevation : int, optional
+        Angle FFT lengths (127: bins symmetric about boresight).
+    n_range : int, optional
+        Range FFT length (default ``num_samples``).
+    window : str, optional
+        Window of the range, azimuth and elevation FFTs (unit coherent gain).
 
-    Returns an :class:`RAECube` (``[n_range, n_azimuth, n_elevation]``; the
-    paper's 256 x 127 x 127 for ``RadarConfig.dense(100, 100)``), chirps
-    averaged coherently (static scene).
+    Returns
+    -------
+    RAECube
+        Shape (n_range, n_azimuth, n_elevation): the paper's 256 x 127 x 127
+        for ``RadarConfig.dense(100, 100)``.
+
+    Raises
+    ------
+    ConfigError
+        ``radar`` does not resolve elevation.
+    InputValueError
+        Wrong ADC shape, NaN or Inf.
     """
     va = check_elevation_aperture(radar)
     mag, ranges, az, el = range_azimuth_elevation(
@@ -158,25 +211,32 @@ def rae_cube(adc, radar: RadarConfig, *, n_azimuth: int = 127, n_elevation: int 
 
 
 def elevation_bins(radar: RadarConfig, n_elevation: int = 127) -> np.ndarray:
-    """Elevation bin centres ``arcsin(w f_d / f_c)`` [rad] of an ``n_elevation`` FFT, ``[n]``."""
+    """Elevation bin centres ``arcsin(w f_d / f_c)`` [rad] of an FFT, shape (n_elevation,)."""
     return angles_from_spatial_frequency(spatial_frequencies(n_elevation), radar)
 
 
 def extruded_cube(ra, ranges_m, azimuths_rad, elevations_rad, mask, origin_m) -> RAECube:
     """Extrude a range-azimuth map over elevation.
 
-    ==================  ======================================================
-    ``ra``              real ``[n_range, n_azimuth]`` magnitudes
-    ``ranges_m``        ``[n_range]`` [m]
-    ``azimuths_rad``    ``[n_azimuth]`` ``arcsin(u_y)`` [rad]
-    ``elevations_rad``  ``[n_elevation]`` ``arcsin(u_z)`` [rad]
-    ``mask``            bool ``[n_azimuth, n_elevation]``: cells the map is
-                        copied to (e.g. the elevation beam)
-    ``origin_m``        ``[3]`` phase centre of the azimuth row (radar frame) [m]
-    ==================  ======================================================
+    Parameters
+    ----------
+    ra : array_like of float, shape (n_range, n_azimuth)
+        RA magnitudes.
+    ranges_m : array_like, shape (n_range,)
+        Range bin centres [m].
+    azimuths_rad : array_like, shape (n_azimuth,)
+        ``arcsin(u_y)`` of the azimuth bins [rad].
+    elevations_rad : array_like, shape (n_elevation,)
+        ``arcsin(u_z)`` of the elevation bins to fill [rad].
+    mask : array_like of bool, shape (n_azimuth, n_elevation)
+        Cells the map is copied to (e.g. the elevation beam).
+    origin_m : array_like, shape (3,)
+        Phase centre of the azimuth row, radar frame [m].
 
-    Returns an :class:`RAECube` with ``power[r, a, e] = ra[r, a]^2`` where
-    ``mask[a, e]`` (and visible), else 0.
+    Returns
+    -------
+    RAECube
+        ``power[r, a, e] = ra[r, a]^2`` where ``mask[a, e]`` and visible, else 0.
     """
     ra = np.asarray(ra, dtype=np.float64)
     az, el = np.asarray(azimuths_rad, float), np.asarray(elevations_rad, float)
@@ -194,7 +254,24 @@ def extruded_cube(ra, ranges_m, azimuths_rad, elevations_rad, mask, origin_m) ->
 def range_azimuth_map(adc, radar: RadarConfig, *, n_azimuth: int = 127, window="hann"):
     """RA magnitude map of the azimuth row and its phase centre, for :func:`extruded_cube`.
 
-    Returns ``(ra [n_range, n_azimuth], ranges_m, azimuths_rad, origin_m [3])``.
+    Parameters
+    ----------
+    adc : ndarray of complex, shape (n_tx, n_rx, n_chirps, n_samples)
+        Raw ADC of one frame.
+    radar : RadarConfig
+        Any radar (the cascade: its 86-element azimuth row).
+    n_azimuth : int, optional
+        Azimuth FFT length (127).
+    window : str, optional
+        Range and azimuth window.
+
+    Returns
+    -------
+    ra : ndarray of float, shape (n_range, n_azimuth)
+    ranges_m : ndarray, shape (n_range,)
+    azimuths_rad : ndarray, shape (n_azimuth,)
+    origin_m : ndarray, shape (3,)
+        Phase centre of the azimuth row, radar frame [m].
     """
     va = VirtualArray(radar)
     ra, ranges, az = range_azimuth(adc, radar, range_window=window, azimuth_window=window,
