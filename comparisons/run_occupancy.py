@@ -1,5 +1,8 @@
 """Reproduce comparisons/occupancy.{md,csv} and figures/occupancy_<scene>.png (one command).
 
+Outputs are named after ``--stem`` (default ``occupancy``): ``<stem>.md``,
+``<stem>.csv``, ``<stem>_details.json``, ``figures/<stem>_<scene>.png``.
+
     .venv/bin/python comparisons/run_occupancy.py [--scenes hallway,lab] [--fit --iterations N]
 
 Single-frame 3-D occupancy of the six benchmark scenes (the paper's Table 4
@@ -112,7 +115,7 @@ def _run_scene(name, args, fig_dir):
                                dynamic_range_db=db)
         sens[db] = [score(c, ref, r, dynamic_range_db=db)[1]
                     for c, r in ((res.cube, dense), (base, cascade))]
-    save_occupancy_figure(os.path.join(fig_dir, f"occupancy_{name}.png"),
+    save_occupancy_figure(os.path.join(fig_dir, f"{args.stem}_{name}.png"),
                           {METHODS[0]: res.cloud, METHODS[1]: base_cloud}, res.reference.points,
                           dense.position, dense.orientation, title=name)
     details = {"reference_counts": res.reference.counts, "timings_s": res.timings,
@@ -174,7 +177,7 @@ def _write(rows, details, args, wall_s):
     text += _fmt_means(rows) + ["", "Truth points left after each gate:", ""] + counts
     text += ["", "Sensitivity to the intensity scale (mean over scenes):", ""]
     text += _fmt_sensitivity(details) + ["", _FOOTER]
-    text += [f"![{s}](figures/occupancy_{s}.png)" for s in details]
+    text += [f"![{s}](figures/{args.stem}_{s}.png)" for s in details]
     with open(os.path.join(args.out, args.stem + ".md"), "w") as f:
         f.write("\n".join(text) + "\n")
 
