@@ -246,3 +246,9 @@ def test_10_fitted_scene_reloads_materials_and_normals(tmp_path):
         load_fitted_scene({"wall": other}, ck)
     with pytest.raises(InputValueError, match="object 'wall'"):
         load_fitted_scene({"door": wall}, ck)
+    from sionna_mmir.cli.main import main
+
+    out = tmp_path / "occ"
+    assert main(["occupancy", wall, "--fitted", str(tmp_path / "fit"), "--array", "8x8",
+                 "--out", str(out)]) == 0
+    assert (out / "points.ply").exists()
