@@ -35,7 +35,7 @@ LAYERS = {
     "effects": 7, "baseline": 7, "benchmark_scenes": 7, "occupancy": 7,
     "fit": 8, "residual": 8, "dataset": 8,
     "pipeline": 9, "compare": 9,
-    "cli": 10,
+    "cli": 10, "__main__": 10,
 }
 
 

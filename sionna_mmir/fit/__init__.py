@@ -7,9 +7,12 @@
 ``adam``        a NumPy Adam with checkpointable state and LR schedules
 ``fitter``      :func:`fit`: the loop (RA loss of paper eq. 7, progress bar,
                 HDF5 checkpoints, resume)
+``fitted``      :func:`load_fitted_scene`: meshes + a checkpoint's latents as a scene
 """
 from .adam import Adam, schedule_lr
+from .fitted import load_fitted_scene
 from .fitter import FitResult, fit, load_checkpoint
 from .models import MMIRModel, SionnaModel
 
-__all__ = ["Adam", "FitResult", "MMIRModel", "SionnaModel", "fit", "load_checkpoint", "schedule_lr"]
+__all__ = ["Adam", "FitResult", "MMIRModel", "SionnaModel", "fit", "load_checkpoint",
+           "load_fitted_scene", "schedule_lr"]

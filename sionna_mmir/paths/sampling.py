@@ -170,7 +170,7 @@ class FacetQuadrature:
         omega = area[fac] / ns ** 2 * cos_q / np.maximum(dq_n, 1e-3) ** 2
         n = len(fac)
         dd = dq.astype(np.float32)
-        origin = dr.zeros(mi.Point3f, n) + mi.Point3f(*(float(v) for v in c))
+        origin = mi.Point3f(*(dr.full(mi.Float, float(v), n) for v in c))   # n may be 0
         direction = mi.Vector3f(mi.Float(dd[:, 0]), mi.Float(dd[:, 1]), mi.Float(dd[:, 2]))
         sub_uv = [mi.Float(uvs[:, k, j].astype(np.float32)) for k in range(3) for j in range(2)]
         return Candidates(origin, direction, mi.Float((1.0 / omega).astype(np.float32)),

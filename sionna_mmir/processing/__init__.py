@@ -10,6 +10,9 @@ One stage per module:
 ``angle_fft``      azimuth / elevation FFTs, spatial frequency -> angle
 ``imaging``        :func:`range_azimuth`, :func:`range_azimuth_elevation`,
                    :func:`range_doppler` (the public pipeline)
+``rae``            :func:`rae_cube` (RAE power cube of a 2-D array, axes,
+                   voxel positions), :func:`extruded_cube` (RA map extruded
+                   over elevation)
 ``calibration``    phase / frequency correction, coupling subtraction
 ``polar``          :func:`polar_to_cartesian`
 =================  ===========================================================
@@ -24,11 +27,12 @@ from .doppler_fft import doppler_bins_hz, doppler_fft, doppler_velocities_m_s
 from .imaging import check_adc, range_azimuth, range_azimuth_elevation, range_doppler
 from .polar import polar_to_cartesian
 from .range_fft import range_bins_m, range_fft, split_range_halves
+from .rae import RAECube, check_elevation_aperture, extruded_cube, rae_cube
 from .virtual_array import VirtualArray
 from .windows import WINDOW_NAMES, get_window
 
 __all__ = [
-    "VirtualArray", "WINDOW_NAMES", "angle_fft", "angles_from_spatial_frequency",
+    "RAECube", "VirtualArray", "check_elevation_aperture", "extruded_cube", "rae_cube", "WINDOW_NAMES", "angle_fft", "angles_from_spatial_frequency",
     "azimuth_fft", "check_adc", "doppler_bins_hz", "doppler_fft", "doppler_velocities_m_s",
     "elevation_fft", "estimate_coupling", "estimate_phase_frequency_calibration",
     "get_window", "phase_frequency_correct", "polar_to_cartesian", "range_azimuth",
