@@ -10,8 +10,8 @@ scalars; :meth:`SionnaBaseline.params` exposes them as unconstrained latents
 and :meth:`SionnaBaseline.apply` pushes them (with their AD graph) into the
 Sionna materials.
 
-Settings and why (``describe()`` returns them for the README)
--------------------------------------------------------------
+Settings and why (``describe()`` returns them for reports)
+-----------------------------------------------------------
 
 * **Materials.**  Each object gets its own radio material (so two concrete
   walls are fitted separately).  Where Sionna's ``ITURadioMaterial`` has an

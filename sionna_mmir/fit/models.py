@@ -120,7 +120,7 @@ class MMIRModel:
         150k mesh 0.64 -> 0.44). On a *denoised* scaffold (normals within
         ~0.1 deg already) even this step costs accuracy (lab, 12 iterations:
         0.821 with normals vs 0.855 without); leave them out of ``learn``
-        there (NOTES.md, session 6).
+        there.
         """
         out = {}
         for k in self.latents():
