@@ -58,14 +58,20 @@ _WHERE = "synthesize_adc_factorised"
 class FactorInputs:
     """Validated factorised paths (NumPy, float64 / complex128).
 
-    ==========  ==========================================================
-    c           complex ``[P]``: per-path amplitude (beat convention)
-    g_t         ``[T, P]``: Tx-leg gain (dimensionless)
-    tau_t       ``[T, P]``: Tx-leg delay [s]
-    g_r         ``[R, P]``: Rx-leg gain (dimensionless)
-    tau_r       ``[R, P]``: Rx-leg delay [s]
-    rho         ``[P]``: delay rate ``d tau / dt`` [s/s], or ``None`` (static)
-    ==========  ==========================================================
+    Parameters
+    ----------
+    c : numpy.ndarray
+        complex ``[P]``: per-path amplitude (beat convention)
+    g_t : numpy.ndarray
+        ``[T, P]``: Tx-leg gain (dimensionless)
+    tau_t : numpy.ndarray
+        ``[T, P]``: Tx-leg delay [s]
+    g_r : numpy.ndarray
+        ``[R, P]``: Rx-leg gain (dimensionless)
+    tau_r : numpy.ndarray
+        ``[R, P]``: Rx-leg delay [s]
+    rho : numpy.ndarray, optional
+        ``[P]``: delay rate ``d tau / dt`` [s/s], or ``None`` (static)
     """
 
     c: np.ndarray

@@ -41,17 +41,26 @@ import mitsuba as mi  # noqa: E402
 class Interaction:
     """One differentiable surface interaction per lane (all ``mi.*`` arrays).
 
-    ==========  =====================================================
-    valid       ``mi.Bool``: a triangle was hit
-    obj         ``mi.UInt32``: object index (order of ``SceneGeometry.names``)
-    face        ``mi.UInt32``: global face index
-    p           ``mi.Point3f`` hit position [m] (AD)
-    n           ``mi.Vector3f`` unit shading normal (AD)
-    ng          ``mi.Vector3f`` unit geometric normal (AD)
-    area_ratio  ``mi.Float`` ``A / detach(A)`` of the hit triangle (AD)
-    mat         list of 6 ``mi.Float``: ``eps', eps'', sigma_h, l_c, tau, d``
-    tri         the hit triangle's vertices ``(P0, P1, P2)`` (AD)
-    ==========  =====================================================
+    Parameters
+    ----------
+    valid : mi.Bool
+        a triangle was hit
+    obj : mi.UInt32
+        object index (order of ``SceneGeometry.names``)
+    face : mi.UInt32
+        global face index
+    p : mi.Point3f
+        hit position [m] (AD)
+    n : mi.Vector3f
+        unit shading normal (AD)
+    ng : mi.Vector3f
+        unit geometric normal (AD)
+    area_ratio : mi.Float
+        ``A / detach(A)`` of the hit triangle (AD)
+    mat : list
+        list of 6 ``mi.Float``: ``eps', eps'', sigma_h, l_c, tau, d``
+    tri : tuple, optional
+        the hit triangle's vertices ``(P0, P1, P2)`` (AD)
     """
 
     valid: object
@@ -103,14 +112,16 @@ class Tape:
 class SceneGeometry:
     """Global (all objects concatenated) differentiable mesh arrays of a scene.
 
-    ==========  ===========================================================
-    scene       :class:`~sionna_mmir.scene.RadarScene`
-    ==========  ===========================================================
-
-    Build a new instance after changing the scene's tensors (it concatenates
-    them inside the AD graph, so gradients flow back to each object's
-    ``vertex_positions`` / ``vertex_normals`` / ``vertex_materials``).
-    """
+    Parameters
+    ----------
+    scene : <TYPE>
+        :class:`~sionna_mmir.scene.RadarScene`
+    Build a new : <TYPE>
+        instance after changing the scene's tensors (it concatenates
+    them inside : <TYPE>
+        the AD graph, so gradients flow back to each object's
+    vertex_positions / vertex_normals / vertex_materials). : <TYPE>
+    """ : <TYPE>
 
     def __init__(self, scene):
         self.scene = scene

@@ -355,19 +355,29 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
                    step_limit=None) -> SpecularSolution:
     """Find reflection points ``x`` on the scene's meshes for ``a -> x -> b``.
 
-    ==========  ===========================================================
-    scene       :class:`~sionna_mmir.scene.RadarScene` (tensors synced)
-    a, b        path endpoints, ``mi.Point3f`` or array (N, 3) / (3,) [m]
-    seed        start points on / near the surface, same forms [m]
-    max_iter    Newton iterations at most (accepted + rejected steps)
-    tol         convergence threshold on ``|C|`` (~ angle between h and n, rad)
-    step_limit  largest step [m] (float, or ``mi.Float`` per lane); default
-                a quarter of the shorter distance from x to a or b
-    returns     :class:`SpecularSolution` of size N (sizes 1 broadcast)
-    ==========  ===========================================================
-
     Runs without AD (see the module docstring for the algorithm).  Raises
     ``InputValueError`` for NaN / Inf or inconsistently sized inputs.
+
+    Parameters
+    ----------
+    scene : <TYPE>
+        :class:`~sionna_mmir.scene.RadarScene` (tensors synced)
+    a, b : <TYPE>
+        path endpoints, ``mi.Point3f`` or array (N, 3) / (3,) [m]
+    seed : <TYPE>
+        start points on / near the surface, same forms [m]
+    max_iter : int, optional
+        Newton iterations at most (accepted + rejected steps)
+    tol : float, optional
+        convergence threshold on ``|C|`` (~ angle between h and n, rad)
+    step_limit : <TYPE>, optional
+        largest step [m] (float, or ``mi.Float`` per lane); default
+        a quarter of the shorter distance from x to a or b
+
+    Returns
+    -------
+    <RTYPE>
+        :class:`SpecularSolution` of size N (sizes 1 broadcast)
     """
     tables = _Tables(scene, detach=True)
     if int(max_iter) < 0:
@@ -483,20 +493,27 @@ def _select_tree(mask, new, old):
 def specular_point_ad(scene, solution: SpecularSolution, a, b):
     """Reflection point and shading normal, differentiable by the IFT.
 
-    ========  ================================================================
-    scene     the :class:`~sionna_mmir.scene.RadarScene` solved on; its
-              ``vertex_positions`` / ``vertex_normals`` tensors may have
-              gradients enabled
-    solution  :class:`SpecularSolution` from :func:`solve_specular`
-    a, b      the endpoints used there (``mi.Point3f``, may carry gradients)
-    returns   ``(x, n)``: ``mi.Point3f`` [m] and unit ``mi.Vector3f``;
-              zero on invalid lanes
-    ========  ================================================================
-
     One Newton step from the detached converged barycentrics with the
     detached Jacobian, ``(u, v) = (u0, v0) - J^-1 C(u0, v0; theta)``, then
     ``x = x(u, v; theta)``: value = the solution, derivative = the implicit
     function theorem's ``-J^-1 dC/dtheta`` (see the module docstring).
+
+    Parameters
+    ----------
+    scene : <TYPE>
+        the :class:`~sionna_mmir.scene.RadarScene` solved on; its
+        ``vertex_positions`` / ``vertex_normals`` tensors may have
+        gradients enabled
+    solution : SpecularSolution
+        :class:`SpecularSolution` from :func:`solve_specular`
+    a, b : <TYPE>
+        the endpoints used there (``mi.Point3f``, may carry gradients)
+
+    Returns
+    -------
+    <RTYPE>
+        ``(x, n)``: ``mi.Point3f`` [m] and unit ``mi.Vector3f``;
+        zero on invalid lanes
     """
     tables = _Tables(scene, detach=False)
     a = _as_point3f(a, "a")

@@ -15,15 +15,6 @@ def polar_to_cartesian(ra, ranges_m, azimuths_rad, x_res: float | None = None,
                        y_res: float | None = None, max_range: float | None = None):
     """Resample a range-azimuth map onto a Cartesian ``(y, x)`` grid.
 
-    ==================  ======================================================
-    ``ra``              real ``[n_range, n_azimuth]`` (e.g. magnitudes)
-    ``ranges_m``        ``[n_range]`` increasing [m]
-    ``azimuths_rad``    ``[n_azimuth]`` increasing [rad] (positive = left)
-    ``x_res``           pixel size along x [m]; default the range bin width
-    ``y_res``           pixel size along y [m]; default ``x_res``
-    ``max_range``       extent [m]; default ``ranges_m[-1]``
-    ==================  ======================================================
-
     Returns ``(image [ny, nx], x_m [nx], y_m [ny])``: ``x_m`` from 0 to
     ``max_range`` (pixel centres), ``y_m`` symmetric about 0 covering
     ``max_range * sin(max |az|)``, increasing (row 0 = rightmost, most
@@ -32,6 +23,21 @@ def polar_to_cartesian(ra, ranges_m, azimuths_rad, x_res: float | None = None,
     of view (range beyond ``min(max_range, ranges_m[-1])``, below
     ``ranges_m[0]`` or azimuth outside ``azimuths_rad``) are 0.
     Repeated azimuths (clipped at +-90 deg) are dropped.
+
+    Parameters
+    ----------
+    ra : <TYPE>
+        real ``[n_range, n_azimuth]`` (e.g. magnitudes)
+    ranges_m : <TYPE>
+        ``[n_range]`` increasing [m]
+    azimuths_rad : <TYPE>
+        ``[n_azimuth]`` increasing [rad] (positive = left)
+    x_res : float, optional
+        pixel size along x [m]; default the range bin width
+    y_res : float, optional
+        pixel size along y [m]; default ``x_res``
+    max_range : float, optional
+        extent [m]; default ``ranges_m[-1]``
     """
     where = "polar_to_cartesian"
     img = np.asarray(ra)

@@ -36,15 +36,22 @@ class VirtualArray:
 
     Attributes (all NumPy):
 
-    ==================  ======================================================
-    ``az_index``        int ``[tx, rx]`` azimuth column of each pair
-    ``el_index``        int ``[tx, rx]`` elevation row of each pair
-    ``n_az``, ``n_el``  grid size (columns, rows)
-    ``counts``          int ``[n_el, n_az]`` pairs per cell (0 = empty)
-    ``azimuth_row``     elevation row used for range-azimuth maps
-    ``row_support``     ``(first, last + 1)`` filled columns of that row
-    ``tx_slot``         int ``[tx]`` TDM slot of each Tx within a loop
-    ==================  ======================================================
+    Parameters
+    ----------
+    az_index : <TYPE>
+        int ``[tx, rx]`` azimuth column of each pair
+    el_index : <TYPE>
+        int ``[tx, rx]`` elevation row of each pair
+    n_az, n_el : <TYPE>
+        grid size (columns, rows)
+    counts : <TYPE>
+        int ``[n_el, n_az]`` pairs per cell (0 = empty)
+    azimuth_row : <TYPE>
+        elevation row used for range-azimuth maps
+    row_support : <TYPE>
+        ``(first, last + 1)`` filled columns of that row
+    tx_slot : <TYPE>
+        int ``[tx]`` TDM slot of each Tx within a loop
     """
 
     def __init__(self, radar: RadarConfig, tol: float = 1e-3):
@@ -153,15 +160,17 @@ class VirtualArray:
     def tdm_compensate(self, spectrum, doppler_hz, doppler_axis: int = 2) -> np.ndarray:
         """Remove the Tx-slot Doppler phase from a Doppler spectrum.
 
-        ==================  ==================================================
-        ``spectrum``        complex ``[tx, rx, ...]`` with the Doppler bins on
-                            ``doppler_axis`` (default 2: ``[tx, rx, doppler, range]``)
-        ``doppler_hz``      ``[n_doppler]`` Doppler frequency of each bin [Hz]
-                            (:func:`~.doppler_fft.doppler_bins_hz`)
-        ==================  ==================================================
-
         Returns the spectrum multiplied by ``exp(-j 2 pi f_D s_i T_chirp)``
         (same shape and dtype).
+
+        Parameters
+        ----------
+        spectrum : <TYPE>
+            complex ``[tx, rx, ...]`` with the Doppler bins on
+            ``doppler_axis`` (default 2: ``[tx, rx, doppler, range]``)
+        doppler_hz : <TYPE>
+            ``[n_doppler]`` Doppler frequency of each bin [Hz]
+            (:func:`~.doppler_fft.doppler_bins_hz`)
         """
         x = np.asarray(spectrum)
         r = self.radar

@@ -323,12 +323,12 @@ class BeamPattern:
 class IsotropicPattern(BeamPattern):
     """Isotropic element: ``G = 1`` (0 dBi) in every direction.
 
-    ============  =====================================================
-    polarization  "V" (default) or "H": linear, see module notes
-    ============  =====================================================
-
-    ``element`` is accepted and ignored (all elements are isotropic).
-    """
+    Parameters
+    ----------
+    polarization : str, optional
+        "V" (default) or "H": linear, see module notes
+    element is accepted and ignored (all elements are isotropic). : <TYPE>
+    """ : <TYPE>
 
     def __init__(self, polarization: str = "V"):
         self.polarization_name = _check_polarization(polarization)
