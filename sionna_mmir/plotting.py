@@ -73,25 +73,34 @@ def plot_range_azimuth(ra, ranges_m, azimuths_rad, ax=None, db: bool = True,
                        title: str | None = None, cmap: str = "viridis"):
     """Draw one RA magnitude map.
 
-    Returns the Axes (its figure is ``ax.figure``; the colour mapping is
-    ``ax.collections`` / ``ax.images``).
-
     Parameters
     ----------
-    ra : <TYPE>
+    ra : array_like
         real ``[n_range, n_azimuth]`` magnitudes
-    ranges_m : <TYPE>
+    ranges_m : array_like
         ``[n_range]`` [m]
-    azimuths_rad : <TYPE>
+    azimuths_rad : array_like
         ``[n_azimuth]`` [rad], increasing (positive = left)
-    ax : <TYPE>, optional
-        a matplotlib Axes; default a new Agg Figure's
+    ax : matplotlib.axes.Axes, optional
+        default a new Agg Figure's
     db : bool, optional
         show ``20 log10(ra / max ra)`` clipped to
         ``[-dynamic_range_db, 0]`` dB; else ``ra / max ra``
+    dynamic_range_db : float, optional
+        dB range shown
     cartesian : bool, optional
         bird's-eye ``(y, x)`` [m] instead of (azimuth [deg],
         range [m])
+    title : str, optional
+        axes title
+    cmap : str, optional
+        matplotlib colour map
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+        its figure is ``ax.figure``; the colour mapping is
+        ``ax.collections`` / ``ax.images``
     """
     ra, r, a = _check(ra, ranges_m, azimuths_rad, "plot_range_azimuth")
     if ax is None:
@@ -112,17 +121,17 @@ def save_ra_panels(panels: dict, ranges_m, azimuths_rad, path, cartesian: bool =
     """Write side-by-side RA panels (e.g. measured / mmIR / Sionna RT) to a PNG.
 
     All panels share one colour scale and one colour bar.  The file is
-    written atomically.  Returns the path.
+    written atomically.
 
     Parameters
     ----------
     panels : dict
         ``{title: ra [n_range, n_azimuth]}``, drawn left to right
-    ranges_m : <TYPE>
+    ranges_m : array_like
         ``[n_range]`` [m], shared by all panels
-    azimuths_rad : <TYPE>
+    azimuths_rad : array_like
         ``[n_azimuth]`` [rad], shared
-    path : <TYPE>
+    path : str or os.PathLike
         output file (``.png``); parent folders are created
     cartesian : bool, optional
         bird's-eye view (``x`` forward, ``y`` left) [m];
@@ -137,6 +146,17 @@ def save_ra_panels(panels: dict, ranges_m, azimuths_rad, path, cartesian: bool =
         ``(w * n + 1, h)`` inches at ``dpi`` (the extra inch
         holds the shared colour bar), so the PNG is exactly
         ``round((w n + 1) dpi) x round(h dpi)`` pixels
+    dpi : int, optional
+        resolution [dots per inch]
+    suptitle : str, optional
+        figure title
+    cmap : str, optional
+        matplotlib colour map
+
+    Returns
+    -------
+    str
+        the path written
     """
     if not isinstance(panels, dict) or not panels:
         raise InputValueError("save_ra_panels: panels must be a non-empty {title: ra} dict")

@@ -57,8 +57,8 @@ class Interaction:
         unit geometric normal (AD)
     area_ratio : mi.Float
         ``A / detach(A)`` of the hit triangle (AD)
-    mat : list
-        list of 6 ``mi.Float``: ``eps', eps'', sigma_h, l_c, tau, d``
+    mat : list of mi.Float
+        the six materials ``eps', eps'', sigma_h, l_c, tau, d``
     tri : tuple, optional
         the hit triangle's vertices ``(P0, P1, P2)`` (AD)
     """
@@ -112,16 +112,15 @@ class Tape:
 class SceneGeometry:
     """Global (all objects concatenated) differentiable mesh arrays of a scene.
 
+    Build a new instance after changing the scene's tensors (it concatenates
+    them inside the AD graph, so gradients flow back to each object's
+    ``vertex_positions`` / ``vertex_normals`` / ``vertex_materials``).
+
     Parameters
     ----------
-    scene : <TYPE>
-        :class:`~sionna_mmir.scene.RadarScene`
-    Build a new : <TYPE>
-        instance after changing the scene's tensors (it concatenates
-    them inside : <TYPE>
-        the AD graph, so gradients flow back to each object's
-    vertex_positions / vertex_normals / vertex_materials). : <TYPE>
-    """ : <TYPE>
+    scene : RadarScene
+        The scene (:class:`~sionna_mmir.scene.RadarScene`).
+    """
 
     def __init__(self, scene):
         self.scene = scene

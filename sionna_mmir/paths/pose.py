@@ -30,8 +30,8 @@ class Pose:
 
     Parameters
     ----------
-    rows : tuple
-        three ``mi.Vector3f``: rows of ``R`` (radar -> scene)
+    rows : tuple of mi.Vector3f
+        the three rows of ``R`` (radar -> scene)
     origin : mi.Point3f
         radar origin in the scene [m]
     """

@@ -38,17 +38,17 @@ class PathFactors:
 
     Parameters
     ----------
-    c_re, c_im : object
+    c_re, c_im : mi.Float
         [P] per-path amplitude, beat convention (``a = c g_t g_r``)
-    g_t : object
+    g_t : mi.Float
         [T*P] Tx-leg gain (``t`` slowest, ``p`` fastest)
-    tau_t : object
+    tau_t : mi.Float
         [T*P] Tx-leg delay [s]
-    g_r : object
+    g_r : mi.Float
         [R*P] Rx-leg gain
-    tau_r : object
+    tau_r : mi.Float
         [R*P] Rx-leg delay [s]
-    rate : object
+    rate : mi.Float or None
         [P] delay rate ``d tau / dt`` [s/s], or ``None`` (static)
     shape : tuple
         ``(T, R, P)``
@@ -186,7 +186,7 @@ class RadarPaths:
     num_candidates : int, optional
         rays launched (the Monte Carlo ``N`` of eq. 3)
     factors : PathFactors, optional
-        :class:`PathFactors` or ``None``
+        the factorised paths, or ``None``
     """
 
     def __init__(self, a_re=None, a_im=None, tau=None, tau_rate=None, shape=(0, 0, 0),

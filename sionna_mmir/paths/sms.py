@@ -355,29 +355,33 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
                    step_limit=None) -> SpecularSolution:
     """Find reflection points ``x`` on the scene's meshes for ``a -> x -> b``.
 
-    Runs without AD (see the module docstring for the algorithm).  Raises
-    ``InputValueError`` for NaN / Inf or inconsistently sized inputs.
+    Runs without AD (see the module docstring for the algorithm).
 
     Parameters
     ----------
-    scene : <TYPE>
-        :class:`~sionna_mmir.scene.RadarScene` (tensors synced)
-    a, b : <TYPE>
-        path endpoints, ``mi.Point3f`` or array (N, 3) / (3,) [m]
-    seed : <TYPE>
-        start points on / near the surface, same forms [m]
+    scene : RadarScene
+        The scene (tensors synced).
+    a, b : mi.Point3f or array_like
+        Path endpoints, ``mi.Point3f`` or array (N, 3) / (3,) [m].
+    seed : mi.Point3f or array_like
+        Start points on / near the surface, same forms [m].
     max_iter : int, optional
-        Newton iterations at most (accepted + rejected steps)
+        Newton iterations at most (accepted + rejected steps).
     tol : float, optional
-        convergence threshold on ``|C|`` (~ angle between h and n, rad)
-    step_limit : <TYPE>, optional
-        largest step [m] (float, or ``mi.Float`` per lane); default
-        a quarter of the shorter distance from x to a or b
+        Convergence threshold on ``|C|`` (~ angle between h and n, rad).
+    step_limit : float or mi.Float, optional
+        Largest step [m] (float, or ``mi.Float`` per lane); default a quarter
+        of the shorter distance from x to a or b.
 
     Returns
     -------
-    <RTYPE>
-        :class:`SpecularSolution` of size N (sizes 1 broadcast)
+    SpecularSolution
+        Of size N (sizes 1 broadcast).
+
+    Raises
+    ------
+    InputValueError
+        NaN / Inf or inconsistently sized inputs.
     """
     tables = _Tables(scene, detach=True)
     if int(max_iter) < 0:
@@ -500,20 +504,20 @@ def specular_point_ad(scene, solution: SpecularSolution, a, b):
 
     Parameters
     ----------
-    scene : <TYPE>
-        the :class:`~sionna_mmir.scene.RadarScene` solved on; its
-        ``vertex_positions`` / ``vertex_normals`` tensors may have
-        gradients enabled
+    scene : RadarScene
+        The scene solved on; its ``vertex_positions`` / ``vertex_normals``
+        tensors may have gradients enabled.
     solution : SpecularSolution
-        :class:`SpecularSolution` from :func:`solve_specular`
-    a, b : <TYPE>
-        the endpoints used there (``mi.Point3f``, may carry gradients)
+        From :func:`solve_specular`.
+    a, b : mi.Point3f
+        The endpoints used there (may carry gradients).
 
     Returns
     -------
-    <RTYPE>
-        ``(x, n)``: ``mi.Point3f`` [m] and unit ``mi.Vector3f``;
-        zero on invalid lanes
+    x : mi.Point3f
+        Reflection point [m]; zero on invalid lanes.
+    n : mi.Vector3f
+        Unit shading normal; zero on invalid lanes.
     """
     tables = _Tables(scene, detach=False)
     a = _as_point3f(a, "a")

@@ -60,14 +60,11 @@ def radar_from_sionna(scene, base="mmwcas", transmitter: str | None = None,
                       receiver: str | None = None, use_arrays: bool = True) -> RadarConfig:
     """A ``RadarConfig`` posed at a Sionna scene's transmitter.
 
-    Raises ``ConfigError`` when the scene has no (or an ambiguous)
-    transmitter, or a receiver oriented differently from it.
-
     Parameters
     ----------
-    scene : <TYPE>
-        ``sionna.rt.Scene`` with at least one ``Transmitter``
-    base : str, optional
+    scene : sionna.rt.Scene
+        a scene with at least one ``Transmitter``
+    base : str or RadarConfig, optional
         preset name or ``RadarConfig``: waveform (and layout when
         the scene has no arrays or ``use_arrays`` is False)
     transmitter : str, optional
@@ -81,9 +78,15 @@ def radar_from_sionna(scene, base="mmwcas", transmitter: str | None = None,
 
     Returns
     -------
-    <RTYPE>
-        :class:`RadarConfig` (``position`` [m], ``orientation``
+    RadarConfig
+        the radar (``position`` [m], ``orientation``
         [rad] from the transmitter; provenance in ``notes``)
+
+    Raises
+    ------
+    ConfigError
+        The scene has no (or an ambiguous) transmitter, or a receiver
+        oriented differently from it.
     """
     radar = preset_radar(base) if isinstance(base, str) else base
     if not isinstance(radar, RadarConfig):
@@ -126,8 +129,8 @@ def radar_to_sionna(radar: RadarConfig, scene=None, name: str = "radar", pattern
     ----------
     radar : RadarConfig
         :class:`RadarConfig` (pose and layout)
-    scene : <TYPE>, optional
-        optional ``sionna.rt.Scene``: the devices are added to it and
+    scene : sionna.rt.Scene, optional
+        the devices are added to it and
         its ``tx_array`` / ``rx_array`` set
     name : str, optional
         device names ``<name>-tx`` / ``<name>-rx``
@@ -136,8 +139,8 @@ def radar_to_sionna(radar: RadarConfig, scene=None, name: str = "radar", pattern
 
     Returns
     -------
-    <RTYPE>
-        the four objects
+    tuple
+        the four objects ``(Transmitter, Receiver, tx_array, rx_array)``
     """
     import mitsuba as mi
     from sionna.rt import AntennaArray, Receiver, Transmitter

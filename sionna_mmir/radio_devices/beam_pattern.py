@@ -323,12 +323,13 @@ class BeamPattern:
 class IsotropicPattern(BeamPattern):
     """Isotropic element: ``G = 1`` (0 dBi) in every direction.
 
+    ``element`` is accepted and ignored (all elements are isotropic).
+
     Parameters
     ----------
-    polarization : str, optional
-        "V" (default) or "H": linear, see module notes
-    element is accepted and ignored (all elements are isotropic). : <TYPE>
-    """ : <TYPE>
+    polarization : {"V", "H"}, optional
+        Linear polarisation, see module notes (default ``"V"``).
+    """
 
     def __init__(self, polarization: str = "V"):
         self.polarization_name = _check_polarization(polarization)

@@ -477,15 +477,10 @@ def denoise_mesh(mesh: trimesh.Trimesh, radius: float = 0.05, crease_angle_deg: 
     is estimated from this mesh alone; :func:`denoise_meshes` shares it
     between the objects of a scene.
 
-    Raises :class:`~sionna_mmir.errors.InputValueError` when ``mesh`` is not
-    a ``trimesh.Trimesh``, has no faces or NaN/Inf vertices, or for a
-    ``radius`` that is not finite and > 0, a ``crease_angle_deg`` outside
-    (0, 90] or ``iterations`` that is not an integer >= 1.
-
     Parameters
     ----------
     mesh : trimesh.Trimesh
-        ``trimesh.Trimesh`` [m] (not modified)
+        the mesh [m] (not modified)
     radius : float, optional
         neighbourhood radius ``R`` [m], > 0; Gaussian
         weights of ``sigma = R / 2``.  Use 2.5-3.5 point
@@ -498,12 +493,20 @@ def denoise_mesh(mesh: trimesh.Trimesh, radius: float = 0.05, crease_angle_deg: 
 
     Returns
     -------
-    <RTYPE>
-        new ``trimesh.Trimesh`` (``process=False``): the same
+    trimesh.Trimesh
+        a new mesh (``process=False``): the same
         faces in the same order, denoised vertices,
         ``vertex_normals`` = fitted plane normals (unit),
         copies of ``face_attributes``, ``vertex_attributes``
         and ``metadata``
+
+    Raises
+    ------
+    InputValueError
+        ``mesh`` is not a ``trimesh.Trimesh``, has no faces or NaN/Inf
+        vertices, or a ``radius`` that is not finite and > 0, a
+        ``crease_angle_deg`` outside (0, 90] or ``iterations`` that is not
+        an integer >= 1.
     """
     r, angle, n_iter = _check(mesh, radius, crease_angle_deg, iterations)
     return _denoise([mesh], r, angle, n_iter)[0]
@@ -572,17 +575,14 @@ def denoise_meshes(meshes: dict, **kwargs) -> dict:
     objects).  The noise level is estimated per mesh but capped at 4x the
     rms pooled over all of them, so that an object made only of small
     facets (a pole, a bollard), which has no plane to measure it on, is
-    judged against the scene's noise.  Raises
-    :class:`~sionna_mmir.errors.InputValueError` when ``meshes`` is not a
-    ``dict``, for an unknown keyword, or for any error of
-    :func:`denoise_mesh` (the message names the object).
+    judged against the scene's noise.
 
     Parameters
     ----------
     meshes : dict
-        ``dict`` name -> ``trimesh.Trimesh`` [m] (e.g. the result of
+        name -> ``trimesh.Trimesh`` [m] (e.g. the result of
         :func:`sionna_mmir.benchmark_scenes.lidarize`)
-    kwargs : dict, optional
+    **kwargs
         ``radius`` [m] (``None``: :func:`auto_radius`, 3 median edge
         lengths), ``crease_angle_deg`` [deg], ``iterations``
         (see :func:`denoise_mesh`), the same for every mesh
@@ -592,6 +592,12 @@ def denoise_meshes(meshes: dict, **kwargs) -> dict:
     dict
         name -> denoised ``trimesh.Trimesh``, same keys in
         the same order (``{}`` for ``{}``)
+
+    Raises
+    ------
+    InputValueError
+        ``meshes`` is not a ``dict``, an unknown keyword, or any error of
+        :func:`denoise_mesh` (the message names the object).
     """
     if not isinstance(meshes, dict):
         raise InputValueError(f"denoise_meshes: meshes must be a dict name -> trimesh.Trimesh, "
