@@ -25,11 +25,11 @@ orthonormal basis ``(u, v) = (Frame3f(d).s, Frame3f(d).t)``; ``r = (a, b)`` are
 screen coordinates relative to ``x`` and ``q = (wo.u, wo.v)`` the transverse
 direction cosines of ``wo`` (``cos theta = wo.d = sqrt(1 - |q|^2)``,
 ``dOmega = d^2q / cos theta``).  The incident field is a Gaussian beam of
-footprint width ``s`` (default ``3 lambda``),
+footprint width ``s`` (default ``3 lambda``)::
 
     w(r) = exp(-|r|^2 / (2 s^2)),        P_b = int |w|^2 d^2r = pi s^2.
 
-For a screen transmission ``T(r)`` the Fraunhofer far field and its power are
+For a screen transmission ``T(r)`` the Fraunhofer far field and its power are::
 
     U(q) = (k/2pi) int w T exp(-j k q.r) d^2r,    dP/d^2q = |U|^2,
     dP/dOmega = |U|^2 cos theta,
@@ -44,7 +44,7 @@ side on which the projected apexes of its adjacent faces lie (``apex0``,
 ``apex1``).  If the two apexes project onto opposite sides the edge is interior
 to the projected geometry (not a silhouette) and does not diffract.  With
 ``p = -n.r`` (perpendicular coordinate) and ``tau = e.r`` (along the edge,
-``tau = 0`` at the foot of the perpendicular from ``x``)
+``tau = 0`` at the foot of the perpendicular from ``x``)::
 
     delta = -n.P0   signed distance of x from the edge line (> 0: x on the
                     opaque side, the usual case for a hit point),

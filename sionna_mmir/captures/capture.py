@@ -2,13 +2,16 @@
 
 HDF5 layout (``format = "sionna_mmir.capture"``, ``version = 1``):
 
-=================  ===========================================================
-``/adc``           complex64 ``[n_frames, n_tx, n_rx, n_chirps, n_samples]``
-``/@radar``        JSON of :meth:`RadarConfig.to_dict` (floats round-trip exactly)
-``/@metadata``     JSON of the metadata dict
-``/@source``       where the data came from (file path or ``"synthetic"``)
-``/extras/<name>`` any extra arrays (e.g. TI's ``PeakValMat``)
-=================  ===========================================================
+``/adc``
+    complex64 ``[n_frames, n_tx, n_rx, n_chirps, n_samples]``
+``/@radar``
+    JSON of :meth:`RadarConfig.to_dict` (floats round-trip exactly)
+``/@metadata``
+    JSON of the metadata dict
+``/@source``
+    where the data came from (file path or ``"synthetic"``)
+``/extras/<name>``
+    any extra arrays (e.g. TI's ``PeakValMat``)
 
 Files are written to a temporary name and renamed, so a failed write never
 leaves a partial file behind.

@@ -1,12 +1,16 @@
 """Inverse rendering: fit a differentiable radar model to a capture.
 
-``reparam``     latent <-> physical maps keeping parameters in their bounds
-``models``      :class:`MMIRModel` (per-vertex materials, normals, beam
-                patterns, optional positions / pose) -- any object with
-                ``latents() / render(latents, seed)`` can be fitted
-``adam``        a NumPy Adam with checkpointable state and LR schedules
-``fitter``      :func:`fit`: the loop (RA loss of paper eq. 7, progress bar,
-                HDF5 checkpoints, resume)
+``reparam``
+    latent <-> physical maps keeping parameters in their bounds
+``models``
+    :class:`MMIRModel` (per-vertex materials, normals, beam
+    patterns, optional positions / pose) -- any object with
+    ``latents() / render(latents, seed)`` can be fitted
+``adam``
+    a NumPy Adam with checkpointable state and LR schedules
+``fitter``
+    :func:`fit`: the loop (RA loss of paper eq. 7, progress bar,
+    HDF5 checkpoints, resume)
 """
 from .adam import Adam, schedule_lr
 from .fitter import FitResult, fit, load_checkpoint

@@ -6,17 +6,20 @@ triangle, which barycentric coordinates -- is kept.  :class:`SceneGeometry`
 then rebuilds every quantity the estimator needs *inside* the AD graph from
 the scene's differentiable per-vertex tensors:
 
-===============  ===========================================================
-position         ``x = (1-u-v) p0 + u p1 + v p2`` (Mitsuba's ``prim_uv``)
-shading normal   ``normalize((1-u-v) n0 + u n1 + v n2)``
-geometric normal ``normalize((p1-p0) x (p2-p0))``
-area ratio       ``A(theta) / detach(A)``: the change of the area element of
-                 the barycentric parameterisation (value 1); multiplying a
-                 sample's weight by it makes the area-measure estimator exact
-                 under vertex motion (Jacobian of ``x(u, v; theta)``)
-material         the six per-vertex parameters interpolated barycentrically
-                 (``[eps', eps'', sigma_h, l_c, tau, d]``)
-===============  ===========================================================
+position
+    ``x = (1-u-v) p0 + u p1 + v p2`` (Mitsuba's ``prim_uv``)
+shading normal
+    ``normalize((1-u-v) n0 + u n1 + v n2)``
+geometric normal
+    ``normalize((p1-p0) x (p2-p0))``
+area ratio
+    ``A(theta) / detach(A)``: the change of the area element of
+    the barycentric parameterisation (value 1); multiplying a
+    sample's weight by it makes the area-measure estimator exact
+    under vertex motion (Jacobian of ``x(u, v; theta)``)
+material
+    the six per-vertex parameters interpolated barycentrically
+    (``[eps', eps'', sigma_h, l_c, tau, d]``)
 
 A surface point is thus *attached* to the material (fixed barycentrics) when
 vertices move: gradients of positions, normals and materials reach the three

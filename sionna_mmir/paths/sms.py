@@ -128,20 +128,29 @@ SpecularSolution = namedtuple(
      "iterations", "error"])
 SpecularSolution.__doc__ = """Result of :func:`solve_specular` (all detached, size N).
 
-==========  ============  ====================================================
-valid       mi.Bool       converged, a and b in front, x visible from both
-shape       mi.ShapePtr   the mesh holding x (null where no triangle)
-object_id   mi.UInt32     index into ``list(scene.mesh_objects)``
-                          (:data:`NO_OBJECT` where no triangle)
-prim_index  mi.UInt32     triangle index within that mesh
-bary        mi.Point2f    barycentrics (b1, b2): x = (1-b1-b2) p0 + b1 p1 + b2 p2
-position    mi.Point3f    the reflection point x [m]
-normal      mi.Vector3f   unit interpolated shading normal at x
-iterations  mi.UInt32     Newton iterations (accepted + rejected) used
-error       mi.Float      final |C| (sine of the angle between h and n)
-==========  ============  ====================================================
-
 Fields other than ``valid`` are the walk's last state on invalid lanes.
+
+Attributes
+----------
+valid : mi.Bool
+    Converged, a and b in front, x visible from both.
+shape : mi.ShapePtr
+    The mesh holding x (null where no triangle).
+object_id : mi.UInt32
+    Index into ``list(scene.mesh_objects)`` (:data:`NO_OBJECT` where no
+    triangle).
+prim_index : mi.UInt32
+    Triangle index within that mesh.
+bary : mi.Point2f
+    Barycentrics ``(b1, b2)``: ``x = (1-b1-b2) p0 + b1 p1 + b2 p2``.
+position : mi.Point3f
+    The reflection point x [m].
+normal : mi.Vector3f
+    Unit interpolated shading normal at x.
+iterations : mi.UInt32
+    Newton iterations (accepted + rejected) used.
+error : mi.Float
+    Final ``|C|`` (sine of the angle between h and n).
 """
 
 

@@ -14,14 +14,15 @@ array ``[..., 3]``.  Angles used below::
 
 Patterns
 --------
-==========================  ==================================================
-:class:`CosinePowerPattern`  learnable separable ``G0 cos(az)^q_az cos(el)^q_el``
-                             (front hemisphere), per-element ``q``, normalised
-                             to directivity in closed form
-:class:`IsotropicPattern`    ``G = 1``
-:class:`SionnaPattern`       Sionna RT 2.2's own patterns ("iso", "dipole",
-                             "hw_dipole", "tr38901"), ``|C_theta|^2+|C_phi|^2``
-==========================  ==================================================
+:class:`CosinePowerPattern`
+    learnable separable ``G0 cos(az)^q_az cos(el)^q_el``
+    (front hemisphere), per-element ``q``, normalised
+    to directivity in closed form
+:class:`IsotropicPattern`
+    ``G = 1``
+:class:`SionnaPattern`
+    Sionna RT 2.2's own patterns ("iso", "dipole",
+    "hw_dipole", "tr38901"), ``|C_theta|^2+|C_phi|^2``
 
 :func:`make_pattern` builds one from a string (``"cos"``, ``"iso"``,
 ``"sionna:tr38901"``, ``"sionna:dipole:H"``) or passes a pattern through.
