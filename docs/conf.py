@@ -50,3 +50,15 @@ myst_heading_anchors = 3
 
 html_theme = "alabaster"
 html_static_path: list[str] = []
+
+
+def _skip_foreign(app, what, name, obj, skip, options):
+    """Document only what the package defines (not names it imports from SciPy & co)."""
+    module = getattr(obj, "__module__", None)
+    if what == "module" and isinstance(module, str) and not module.startswith("sionna_mmir"):
+        return True
+    return None
+
+
+def setup(app):
+    app.connect("autodoc-skip-member", _skip_foreign)

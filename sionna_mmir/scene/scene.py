@@ -108,7 +108,7 @@ class RadarScene(Scene):
         Mitsuba scene holding one ``mi.Mesh`` per object
     objects : dict
         name -> :class:`MeshObject` (kept as ``mesh_objects``;
-        Sionna's ``objects`` holds the ``SceneObject``s)
+        Sionna's ``objects`` holds the ``SceneObject`` instances)
     frequency : float, optional
         carrier frequency [Hz] (default 77 GHz)
     radar : RadarConfig, optional

@@ -99,7 +99,7 @@ from .mesh_io import TriMeshData, read_mesh
 #: surface defaults for Sionna's P.2040-4 types absent from the package's table
 SURFACE_ANALOGUES = {"asphalt_concrete": "concrete", "vinyl_tile": "floorboard",
                      "carpet_tile": "ceiling_board", "clear_acrylic": "glass"}
-#: roughness defaults of plain (non-ITU) Sionna ``RadioMaterial``s
+#: roughness defaults of plain (non-ITU) Sionna ``RadioMaterial`` instances
 GENERIC_SURFACE = "concrete"
 SHADINGS = ("sionna", "shared", "flat", "auto")
 
