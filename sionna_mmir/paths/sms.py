@@ -364,33 +364,22 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
                    step_limit=None) -> SpecularSolution:
     """Find reflection points ``x`` on the scene's meshes for ``a -> x -> b``.
 
-    Runs without AD (see the module docstring for the algorithm).
+    Runs without AD (see the module docstring).  Returns a
+    :class:`SpecularSolution` of size N (sizes 1 broadcast); NaN / Inf or
+    inconsistently sized inputs raise ``InputValueError``.
 
     Parameters
     ----------
     scene : RadarScene
         The scene (tensors synced).
-    a, b : mi.Point3f or array_like
-        Path endpoints, ``mi.Point3f`` or array (N, 3) / (3,) [m].
-    seed : mi.Point3f or array_like
-        Start points on / near the surface, same forms [m].
-    max_iter : int, optional
-        Newton iterations at most (accepted + rejected steps).
-    tol : float, optional
-        Convergence threshold on ``|C|`` (~ angle between h and n, rad).
+    a, b, seed : mi.Point3f or array_like
+        Path endpoints; start points on / near the surface; (N, 3) / (3,) [m].
+    max_iter, tol : int, float, optional
+        Newton iterations at most (accepted + rejected); convergence threshold
+        on ``|C|`` (~ angle between h and n) [rad].
     step_limit : float or mi.Float, optional
-        Largest step [m] (float, or ``mi.Float`` per lane); default a quarter
-        of the shorter distance from x to a or b.
-
-    Returns
-    -------
-    SpecularSolution
-        Of size N (sizes 1 broadcast).
-
-    Raises
-    ------
-    InputValueError
-        NaN / Inf or inconsistently sized inputs.
+        Largest step [m] (per lane); default a quarter of the shorter distance
+        from x to a or b.
     """
     tables = _Tables(scene, detach=True)
     if int(max_iter) < 0:
