@@ -378,8 +378,7 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
         Newton iterations at most (accepted + rejected); convergence threshold
         on ``|C|`` (~ angle between h and n) [rad].
     step_limit : float or mi.Float, optional
-        Largest step [m] (per lane); default a quarter of the shorter distance
-        from x to a or b.
+        Largest step [m]; default a quarter of the shorter distance from x to a or b.
     """
     tables = _Tables(scene, detach=True)
     if int(max_iter) < 0:
