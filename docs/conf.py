@@ -60,5 +60,54 @@ def _skip_foreign(app, what, name, obj, skip, options):
     return None
 
 
+def _canonical(name: str):
+    """``sionna_mmir.scene.RadarScene`` -> ``sionna_mmir.scene.scene.RadarScene``: where a
+    re-exported object is defined (and documented)."""
+    import importlib
+
+    parts = name.split(".")
+    for i in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:i]))
+        except Exception:  # noqa: BLE001  (not a module: try a shorter prefix)
+            continue
+        try:
+            for attr in parts[i:]:
+                obj = getattr(obj, attr)
+        except AttributeError:
+            return None
+        module = getattr(obj, "__module__", None)
+        qualname = getattr(obj, "__qualname__", None)
+        if isinstance(obj, type(importlib)):
+            return obj.__name__
+        return f"{module}.{qualname}" if module and qualname else None
+    return None
+
+
+def _resolve_reexport(app, env, node, contnode):
+    """Resolve references to re-exported names and to names relative to the current
+    package, so that ``:class:`~sionna_mmir.scene.RadarScene``` links to its page."""
+    if node.get("refdomain") != "py":
+        return None
+    target = node["reftarget"].lstrip("~.")
+    module = node.get("py:module") or ""
+    candidates = [target]
+    while module:
+        candidates.append(f"{module}.{target}")
+        module = module.rpartition(".")[0]
+    domain = env.get_domain("py")
+    for cand in candidates:
+        if not cand.startswith("sionna_mmir"):
+            continue
+        canonical = _canonical(cand)
+        if canonical and canonical != node["reftarget"]:
+            found = domain.resolve_any_xref(env, node.get("refdoc", ""), app.builder, canonical,
+                                            node, contnode)
+            if found:
+                return found[0][1]
+    return None
+
+
 def setup(app):
     app.connect("autodoc-skip-member", _skip_foreign)
+    app.connect("missing-reference", _resolve_reexport)

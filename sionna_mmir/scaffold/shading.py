@@ -121,7 +121,7 @@ def _creased(mesh, name, angle, planar):
 
 
 #: an object with at least this share of curved area is curved
-#: (:func:`auto_shaded`, :func:`sionna_mmir.scene.prepare_scaffold`)
+#: (:func:`auto_shaded`, :func:`sionna_mmir.scaffold.prepare_scaffold`)
 MIN_CURVED = 0.1
 
 
