@@ -2,7 +2,7 @@
 VENV ?= .venv
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test bench docs clean
 
 setup:
 	@bash scripts/bootstrap.sh
@@ -16,5 +16,8 @@ test: setup
 bench: setup
 	$(VENV)/bin/python -m pytest -q -m benchmark -s benchmarks $(PYTEST_ARGS)
 
+docs: setup
+	$(VENV)/bin/python -m sphinx -W --keep-going -b html docs docs/_build/html
+
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache docs/_build

@@ -102,7 +102,7 @@ def main(argv=None) -> int:
 
 def _scene_in_subprocess(name: str, argv) -> dict:
     """Run one scene in a fresh interpreter (``--worker``); one retry if it dies
-    (Dr.Jit 1.5 has segfaulted in long facet fits, see NOTES.md session 6)."""
+    (Dr.Jit 1.5 has segfaulted in long facet fits, an open question in NOTES.md)."""
     import subprocess
     import tempfile
 

@@ -13,11 +13,11 @@ clean              the clean mesh, true materials (depth 3): the renderer's
 scan, noise-free   the LiDAR-like scan with its range / tangential noise off
                    (holes, shadows, tessellation only), true materials
 scan               the LiDAR-like scan the fitters get, true materials
-scan, denoised     that scan after ``scene.denoise_meshes``, true materials
+scan, denoised     that scan after ``scaffold.denoise_meshes``, true materials
 denoised, nominal  the same with the nominal ITU materials (a fit's start)
-denoised, auto-    the denoised scan shaded per object (``scene.auto_shaded``;
-shaded             session 8's benchmark scaffold), true materials
-scaffold           the benchmark table's scaffold: ``scene.prepare_scaffold``
+denoised, auto-    the denoised scan shaded per object (``scaffold.auto_shaded``;
+shaded             no plane snapping), true materials
+scaffold           the benchmark table's scaffold: ``scaffold.prepare_scaffold``
                    (denoised, planes snapped, auto-shaded), true materials
 =================  ==========================================================
 

@@ -73,19 +73,34 @@ def plot_range_azimuth(ra, ranges_m, azimuths_rad, ax=None, db: bool = True,
                        title: str | None = None, cmap: str = "viridis"):
     """Draw one RA magnitude map.
 
-    ==================  ======================================================
-    ``ra``              real ``[n_range, n_azimuth]`` magnitudes
-    ``ranges_m``        ``[n_range]`` [m]
-    ``azimuths_rad``    ``[n_azimuth]`` [rad], increasing (positive = left)
-    ``ax``              a matplotlib Axes; default a new Agg Figure's
-    ``db``              show ``20 log10(ra / max ra)`` clipped to
-                        ``[-dynamic_range_db, 0]`` dB; else ``ra / max ra``
-    ``cartesian``       bird's-eye ``(y, x)`` [m] instead of (azimuth [deg],
-                        range [m])
-    ==================  ======================================================
+    Parameters
+    ----------
+    ra : array_like
+        real ``[n_range, n_azimuth]`` magnitudes
+    ranges_m : array_like
+        ``[n_range]`` [m]
+    azimuths_rad : array_like
+        ``[n_azimuth]`` [rad], increasing (positive = left)
+    ax : matplotlib.axes.Axes, optional
+        default a new Agg Figure's
+    db : bool, optional
+        show ``20 log10(ra / max ra)`` clipped to
+        ``[-dynamic_range_db, 0]`` dB; else ``ra / max ra``
+    dynamic_range_db : float, optional
+        dB range shown
+    cartesian : bool, optional
+        bird's-eye ``(y, x)`` [m] instead of (azimuth [deg],
+        range [m])
+    title : str, optional
+        axes title
+    cmap : str, optional
+        matplotlib colour map
 
-    Returns the Axes (its figure is ``ax.figure``; the colour mapping is
-    ``ax.collections`` / ``ax.images``).
+    Returns
+    -------
+    matplotlib.axes.Axes
+        its figure is ``ax.figure``; the colour mapping is
+        ``ax.collections`` / ``ax.images``
     """
     ra, r, a = _check(ra, ranges_m, azimuths_rad, "plot_range_azimuth")
     if ax is None:
@@ -105,24 +120,43 @@ def save_ra_panels(panels: dict, ranges_m, azimuths_rad, path, cartesian: bool =
                    suptitle: str | None = None, cmap: str = "viridis") -> str:
     """Write side-by-side RA panels (e.g. measured / mmIR / Sionna RT) to a PNG.
 
-    ==================  ======================================================
-    ``panels``          ``{title: ra [n_range, n_azimuth]}``, drawn left to right
-    ``ranges_m``        ``[n_range]`` [m], shared by all panels
-    ``azimuths_rad``    ``[n_azimuth]`` [rad], shared
-    ``path``            output file (``.png``); parent folders are created
-    ``cartesian``       bird's-eye view (``x`` forward, ``y`` left) [m];
-                        ``False``: range [m] vs azimuth [deg]
-    ``db``              dB display clipped to ``dynamic_range_db``
-    ``normalize_each``  each panel relative to its own peak (default; maps of
-                        different absolute scale) or all to the global peak
-    ``panel_size``      inches per panel ``(w, h)``; the figure is
-                        ``(w * n + 1, h)`` inches at ``dpi`` (the extra inch
-                        holds the shared colour bar), so the PNG is exactly
-                        ``round((w n + 1) dpi) x round(h dpi)`` pixels
-    ==================  ======================================================
-
     All panels share one colour scale and one colour bar.  The file is
-    written atomically.  Returns the path.
+    written atomically.
+
+    Parameters
+    ----------
+    panels : dict
+        ``{title: ra [n_range, n_azimuth]}``, drawn left to right
+    ranges_m : array_like
+        ``[n_range]`` [m], shared by all panels
+    azimuths_rad : array_like
+        ``[n_azimuth]`` [rad], shared
+    path : str or os.PathLike
+        output file (``.png``); parent folders are created
+    cartesian : bool, optional
+        bird's-eye view (``x`` forward, ``y`` left) [m];
+        ``False``: range [m] vs azimuth [deg]
+    db : bool, optional
+        dB display clipped to ``dynamic_range_db``
+    normalize_each : bool, optional
+        each panel relative to its own peak (default; maps of
+        different absolute scale) or all to the global peak
+    panel_size : tuple, optional
+        inches per panel ``(w, h)``; the figure is
+        ``(w * n + 1, h)`` inches at ``dpi`` (the extra inch
+        holds the shared colour bar), so the PNG is exactly
+        ``round((w n + 1) dpi) x round(h dpi)`` pixels
+    dpi : int, optional
+        resolution [dots per inch]
+    suptitle : str, optional
+        figure title
+    cmap : str, optional
+        matplotlib colour map
+
+    Returns
+    -------
+    str
+        the path written
     """
     if not isinstance(panels, dict) or not panels:
         raise InputValueError("save_ra_panels: panels must be a non-empty {title: ra} dict")

@@ -110,8 +110,8 @@ def test_replayed_samples_are_frozen_at_every_depth():
     acceleration structure (``scene.sync()``) must not change what is replayed,
     and central differences of the replayed estimator converge to AD.
 
-    (The recorded hits of depths 2 and 3 used to be lazy Dr.Jit expressions
-    that re-ran the ray tracing against the *current* scene on replay.)
+    (Lazy Dr.Jit expressions for the hits of depths 2 and 3 would re-run the
+    ray tracing against the *current* scene on replay.)
     """
     import trimesh
 

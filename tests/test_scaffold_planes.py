@@ -1,4 +1,4 @@
-"""sionna_mmir.scene.snap_planes: region growing + total-least-squares planes, vertex snapping."""
+"""sionna_mmir.scaffold.snap_planes: region growing + total-least-squares planes, vertex snapping."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""sionna_mmir.scene.prepare_scaffold: denoise -> snap planes -> shading, in one call."""
+"""sionna_mmir.scaffold.prepare_scaffold: denoise -> snap planes -> shading, in one call."""
 from __future__ import annotations
 
 import numpy as np

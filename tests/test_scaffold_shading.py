@@ -1,4 +1,4 @@
-"""sionna_mmir.scene.flat_shaded / crease_shaded: per-face or crease-split vertices and normals."""
+"""sionna_mmir.scaffold.flat_shaded / crease_shaded: per-face or crease-split vertices and normals."""
 from __future__ import annotations
 
 import numpy as np

@@ -10,8 +10,8 @@ scalars; :meth:`SionnaBaseline.params` exposes them as unconstrained latents
 and :meth:`SionnaBaseline.apply` pushes them (with their AD graph) into the
 Sionna materials.
 
-Settings and why (``describe()`` returns them for the README)
--------------------------------------------------------------
+Settings and why (``describe()`` returns them for reports)
+-----------------------------------------------------------
 
 * **Materials.**  Each object gets its own radio material (so two concrete
   walls are fitted separately).  Where Sionna's ``ITURadioMaterial`` has an
@@ -246,46 +246,61 @@ def _check_inputs(where, meshes, materials, radar, frequency, scattering_pattern
 class SionnaBaseline:
     """Plain Sionna RT 2.2 on a scene + radar, rendered to raw FMCW ADC.
 
-    =======================  ===================================================
-    ``meshes``               ``dict`` object name -> ``trimesh.Trimesh`` or
-                             PLY/OBJ path (scene frame, metres)
-    ``materials``            ``dict`` object name -> ITU-R P.2040 material
-                             valid at ``frequency`` (at 77 GHz: concrete,
-                             metal, glass, wood, plasterboard,
-                             ceiling_board, chipboard, floorboard); one
-                             entry per mesh
-    ``radar``                :class:`~sionna_mmir.radar.RadarConfig`
-                             (elements, pose, waveform)
-    ``frequency``            carrier for the materials and Sionna's
-                             wavelength [Hz] (77e9)
-    ``max_depth``            PathSolver ``max_depth`` (3)
-    ``samples_per_src``      rays per source, i.e. per Tx element (100_000)
-    ``specular_reflection``  (True)
-    ``diffuse_reflection``   (True)
-    ``refraction``           (False)
-    ``diffraction``          wedge diffraction (True, see the module docstring)
-    ``edge_diffraction``     knife-edge diffraction on free mesh borders
-                             (False: clipped floors / walls have artificial
-                             borders)
-    ``seed``                 PathSolver seed used by :meth:`render` (0)
-    ``scattering_coefficient``  initial ``S`` of every object (0.3)
-    ``xpd_coefficient``      initial ``K_x`` of every object (0.0)
-    ``scattering_pattern``   ``"lambertian"`` (default), ``"directive"`` or
-                             ``"backscattering"`` (Sionna's registered
-                             patterns, with their default lobe parameters)
-    ``antenna_pattern``      element pattern of every Tx / Rx: ``"iso"``
-                             (default), ``"dipole"``, ``"hw_dipole"``,
-                             ``"tr38901"``; vertical polarisation
-    ``max_num_paths_per_src``  PathSolver cap (Sionna's default 1_000_000)
-    ``deterministic``        ``PathSolver(deterministic=True)`` (True)
-    ``drop_degenerate``      drop zero-area triangles instead of raising
-    =======================  ===================================================
+    Parameters
+    ----------
+    meshes : dict
+        Object name -> ``trimesh.Trimesh`` or PLY/OBJ path (scene frame,
+        metres).
+    materials : dict
+        Object name -> ITU-R P.2040 material valid at ``frequency`` (at
+        77 GHz: concrete, metal, glass, wood, plasterboard, ceiling_board,
+        chipboard, floorboard); one entry per mesh.
+    radar : RadarConfig
+        Elements, pose and waveform.
+    frequency : float, optional
+        Carrier for the materials and Sionna's wavelength [Hz] (77e9).
+    max_depth : int, optional
+        PathSolver ``max_depth`` (3).
+    samples_per_src : int, optional
+        Rays per source, i.e. per Tx element (100_000).
+    specular_reflection : bool, optional
+        Specular reflection (True).
+    diffuse_reflection : bool, optional
+        Diffuse reflection (True).
+    refraction : bool, optional
+        Refraction (False).
+    diffraction : bool, optional
+        Wedge diffraction (True, see the module docstring).
+    edge_diffraction : bool, optional
+        Knife-edge diffraction on free mesh borders (False: clipped floors /
+        walls have artificial borders).
+    seed : int, optional
+        PathSolver seed used by :meth:`render` (0).
+    scattering_coefficient : float, optional
+        Initial ``S`` of every object (0.3).
+    xpd_coefficient : float, optional
+        Initial ``K_x`` of every object (0.0).
+    scattering_pattern : {"lambertian", "directive", "backscattering"}, optional
+        Sionna's registered patterns, with their default lobe parameters
+        (default ``"lambertian"``).
+    antenna_pattern : {"iso", "dipole", "hw_dipole", "tr38901"}, optional
+        Element pattern of every Tx / Rx, vertical polarisation (default
+        ``"iso"``).
+    max_num_paths_per_src : int, optional
+        PathSolver cap (Sionna's default 1_000_000).
+    deterministic : bool, optional
+        ``PathSolver(deterministic=True)`` (True).
+    drop_degenerate : bool, optional
+        Drop zero-area triangles instead of raising.
 
-    Bad input raises :class:`~sionna_mmir.errors.InputValueError` (no or bad
-    meshes: empty dict, unreadable file, NaN / Inf vertices, degenerate
-    triangles) or :class:`~sionna_mmir.errors.ConfigError` (unknown material
-    or one invalid at ``frequency``, materials missing for / given for
-    unknown objects, bad settings).
+    Raises
+    ------
+    InputValueError
+        No or bad meshes: empty dict, unreadable file, NaN / Inf vertices,
+        degenerate triangles.
+    ConfigError
+        Unknown material or one invalid at ``frequency``, materials missing
+        for / given for unknown objects, bad settings.
     """
 
     def __init__(self, meshes: dict, materials: dict, radar: RadarConfig, frequency: float = 77e9,

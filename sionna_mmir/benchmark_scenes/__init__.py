@@ -61,7 +61,7 @@ classroom          7 m wide, 3 m high, front wall at 10 m.  floor: floorboard; c
                    4 cm legs (desk_legs: metal); teacher's desk and cabinet (wood);
                    locker (metal).  LiDAR from (0, 0, 1.3), (0.5, +/-1.5, 1.8).
 street             road 7 m wide (concrete), 0.15 m kerbs (concrete), 1.85 m sidewalks
-                   at 0.15 m (concrete), 4 m concrete facades at |y| = 5.5 m from
+                   at 0.15 m (concrete), 4 m concrete facades at ``|y| = 5.5`` m from
                    x = 3.4 m to 10.1 m with recessed windows (glass) and a 0.35 m door
                    recess (door: wood); two cars along the right kerb, one on the left:
                    body 0.25-1.0 m high (carN_body: metal), cabin to 1.45 m

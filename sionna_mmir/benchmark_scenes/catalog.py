@@ -66,20 +66,28 @@ _CLIP_RADIUS = 11.9                   # horizontal radius of the ground clip pol
 class SceneSpec:
     """One benchmark scene.
 
-    ==================  =====================================================
-    name                catalog key, e.g. ``"hallway"``
-    objects             ``dict`` name -> ``trimesh.Trimesh`` (clean geometry,
-                        metres, world frame)
-    materials           ``dict`` name -> nominal ITU-R P.2040 material class
-                        (what a user would assign; valid at 77 GHz)
-    radar_position      (3,) radar position [m]
-    radar_orientation   (3,) radar (yaw, pitch, roll) [rad], Sionna convention
-    description         how the scene is laid out (one paragraph)
-    lidar_positions     (S, 3) positions of the simulated LiDAR scans [m]
-                        (input of :func:`sionna_mmir.benchmark_scenes.lidar.lidarize`)
-    seed                the layout seed it was built with
-    indoor              True for rooms, False for street-type scenes
-    ==================  =====================================================
+    Parameters
+    ----------
+    name : str
+        Catalog key, e.g. ``"hallway"``.
+    objects : dict
+        Name -> ``trimesh.Trimesh`` (clean geometry, metres, world frame).
+    materials : dict
+        Name -> nominal ITU-R P.2040 material class (what a user would
+        assign; valid at 77 GHz).
+    radar_position : numpy.ndarray
+        ``(3,)`` radar position [m].
+    radar_orientation : numpy.ndarray
+        ``(3,)`` radar ``(yaw, pitch, roll)`` [rad], Sionna convention.
+    description : str
+        How the scene is laid out (one paragraph).
+    lidar_positions : numpy.ndarray, optional
+        ``(S, 3)`` positions of the simulated LiDAR scans [m] (input of
+        :func:`sionna_mmir.benchmark_scenes.lidar.lidarize`).
+    seed : int, optional
+        The layout seed it was built with.
+    indoor : bool, optional
+        True for rooms, False for street-type scenes.
     """
 
     name: str
@@ -246,19 +254,29 @@ def _cylinder(x, y, z0, z1, radius, n_sides=12, top=True):
 def _wall(origin, u_dir, width, height, openings=(), normal=None):
     """Vertical wall with rectangular recessed openings.
 
-    ========  ===========================================================
-    origin    bottom corner of the wall [m]
-    u_dir     horizontal direction along the wall (unit after normalising)
-    width     wall length along ``u_dir`` [m]; height [m] along ``+z``
-    openings  list of ``(u0, u1, v0, v1, depth)``: an opening from ``u0``
-              to ``u1`` along the wall and ``v0`` to ``v1`` up, recessed
-              ``depth`` into the wall
-    normal    side the wall faces (default ``u_dir x z``)
-    ========  ===========================================================
+    Parameters
+    ----------
+    origin : array_like
+        ``(3,)`` bottom corner of the wall [m].
+    u_dir : array_like
+        ``(3,)`` horizontal direction along the wall (unit after
+        normalising).
+    width, height : float
+        Wall length along ``u_dir`` and height along ``+z`` [m].
+    openings : sequence of tuple, optional
+        ``(u0, u1, v0, v1, depth)`` each: an opening from ``u0`` to ``u1``
+        along the wall and ``v0`` to ``v1`` up, recessed ``depth`` into the
+        wall [m].
+    normal : array_like, optional
+        ``(3,)`` side the wall faces (default ``u_dir x z``).
 
-    Returns ``(wall, panes)``: the wall (its face with holes plus the four
-    reveals of every opening) and one rectangle per opening (the pane /
-    door at the back of the recess, facing like the wall).
+    Returns
+    -------
+    wall : tuple
+        The wall: its face with holes plus the four reveals of every opening.
+    panes : list
+        One rectangle per opening (the pane / door at the back of the recess,
+        facing like the wall).
     """
     o = np.asarray(origin, dtype=float)
     u = np.asarray(u_dir, dtype=float)

@@ -705,23 +705,28 @@ def lidarize_scene(spec, seed: int = 0, **kwargs) -> dict:
 def mesh_statistics(mesh) -> dict:
     """Quality numbers of a LiDAR mesh (or a ``dict`` of them, pooled).
 
-    ==========================  ============================================
-    n_triangles, n_vertices     counts
-    median_edge_m, mean_edge_m  unique edge lengths [m]
-    frac_subwavelength          fraction of triangles whose longest edge is
-                                below the 77 GHz wavelength (3.89 mm)
-    frac_edges_subwavelength    fraction of edges below it
-    normal_dev_median_deg       median angle between face normal and the
-                                clean surface normal [deg] (NaN without
-                                ``face_attributes["clean_normal"]``)
-    normal_dev_p90_deg          its 90th percentile [deg]
-    offset_rms_m, offset_max_m  vertex distance from the clean surface
-                                (along the clean normal) [m]
-    n_boundary_edges            edges used by one triangle only
-    hole_area_fraction          ``1 - (area projected on the clean
-                                normals) / visible clean area`` (NaN
-                                without ``metadata["lidar"]``)
-    ==========================  ============================================
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh or dict
+        A LiDAR-like mesh, or name -> mesh (pooled).
+
+    Returns
+    -------
+    dict
+        ``n_triangles``, ``n_vertices``: counts;
+        ``median_edge_m``, ``mean_edge_m``: unique edge lengths [m];
+        ``frac_subwavelength``: fraction of triangles whose longest edge is
+        below the 77 GHz wavelength (3.89 mm);
+        ``frac_edges_subwavelength``: fraction of edges below it;
+        ``normal_dev_median_deg``: median angle between face normal and the
+        clean surface normal [deg] (NaN without
+        ``face_attributes["clean_normal"]``);
+        ``normal_dev_p90_deg``: its 90th percentile [deg];
+        ``offset_rms_m``, ``offset_max_m``: vertex distance from the clean
+        surface (along the clean normal) [m];
+        ``n_boundary_edges``: edges used by one triangle only;
+        ``hole_area_fraction``: ``1 - (area projected on the clean normals) /
+        visible clean area`` (NaN without ``metadata["lidar"]``).
     """
     meshes = list(mesh.values()) if isinstance(mesh, dict) else [mesh]
     if not meshes or not all(isinstance(m, trimesh.Trimesh) for m in meshes):

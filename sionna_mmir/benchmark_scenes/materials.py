@@ -80,15 +80,21 @@ _AMPLITUDES = {"eps_real": 0.3, "eps_imag": 0.5, "sigma_h": 1.0, "l_c": 0.5, "ta
 class MaterialPatch:
     """A rectangular patch of another material on an object.
 
-    =========  ========================================================
-    material   ITU-R P.2040 class of the patch
-    center     (3,) centre on the object's surface [m]
-    u, v, n    (3,) unit axes: along the patch (u horizontal where
-               possible), and the surface normal
-    half_u     half side along ``u`` [m]; half_v along ``v`` [m]
-    half_n     half thickness across the surface [m]
-    edge       width of the soft edge [m]
-    =========  ========================================================
+    Parameters
+    ----------
+    material : str
+        ITU-R P.2040 class of the patch.
+    center : numpy.ndarray
+        ``(3,)`` centre on the object's surface [m].
+    u, v, n : numpy.ndarray
+        ``(3,)`` unit axes: along the patch (``u`` horizontal where possible),
+        and the surface normal.
+    half_u, half_v : float
+        Half sides along ``u`` and ``v`` [m].
+    half_n : float, optional
+        Half thickness across the surface [m].
+    edge : float, optional
+        Width of the soft edge [m].
     """
 
     material: str
@@ -217,19 +223,32 @@ def true_vertex_materials(spec, mesh_name: str, vertices, seed: int = 0,
                           frequency_hz: float = FREQUENCY_HZ) -> np.ndarray:
     """Ground-truth per-vertex material parameters of object ``mesh_name``.
 
-    ============  ========================================================
-    spec          :class:`~sionna_mmir.benchmark_scenes.catalog.SceneSpec`
-    mesh_name     object name (key of ``spec.objects``)
-    vertices      (N, 3) world positions to evaluate at [m]
-    seed          material seed (independent of the layout seed)
-    frequency_hz  frequency of the nominal ITU values (default 77 GHz)
-    returns       ``np.ndarray`` float64 (N, 6): ``[eps_real, eps_imag,
-                  sigma_h [m], l_c [m], tau, d [m]]``
-    ============  ========================================================
-
     Deterministic in ``(spec.name, spec.seed, mesh_name, seed)``; see the
-    module docstring for the recipe.  Raises ``InputValueError`` for an
-    unknown object or vertices that are not finite (N, 3).
+    module docstring for the recipe.
+
+    Parameters
+    ----------
+    spec : SceneSpec
+        The benchmark scene (:class:`~sionna_mmir.benchmark_scenes.catalog.SceneSpec`).
+    mesh_name : str
+        Object name (key of ``spec.objects``).
+    vertices : array_like
+        ``(N, 3)`` world positions to evaluate at [m].
+    seed : int, optional
+        Material seed (independent of the layout seed).
+    frequency_hz : float, optional
+        Frequency of the nominal ITU values [Hz] (default 77 GHz).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 ``(N, 6)``: ``[eps_real, eps_imag, sigma_h [m], l_c [m], tau,
+        d [m]]``.
+
+    Raises
+    ------
+    InputValueError
+        An unknown object or vertices that are not finite ``(N, 3)``.
     """
     _check(spec, mesh_name)
     x = np.asarray(vertices, dtype=float)

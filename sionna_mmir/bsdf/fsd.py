@@ -25,11 +25,11 @@ orthonormal basis ``(u, v) = (Frame3f(d).s, Frame3f(d).t)``; ``r = (a, b)`` are
 screen coordinates relative to ``x`` and ``q = (wo.u, wo.v)`` the transverse
 direction cosines of ``wo`` (``cos theta = wo.d = sqrt(1 - |q|^2)``,
 ``dOmega = d^2q / cos theta``).  The incident field is a Gaussian beam of
-footprint width ``s`` (default ``3 lambda``),
+footprint width ``s`` (default ``3 lambda``)::
 
     w(r) = exp(-|r|^2 / (2 s^2)),        P_b = int |w|^2 d^2r = pi s^2.
 
-For a screen transmission ``T(r)`` the Fraunhofer far field and its power are
+For a screen transmission ``T(r)`` the Fraunhofer far field and its power are::
 
     U(q) = (k/2pi) int w T exp(-j k q.r) d^2r,    dP/d^2q = |U|^2,
     dP/dOmega = |U|^2 cos theta,
@@ -44,7 +44,7 @@ side on which the projected apexes of its adjacent faces lie (``apex0``,
 ``apex1``).  If the two apexes project onto opposite sides the edge is interior
 to the projected geometry (not a silhouette) and does not diffract.  With
 ``p = -n.r`` (perpendicular coordinate) and ``tau = e.r`` (along the edge,
-``tau = 0`` at the foot of the perpendicular from ``x``)
+``tau = 0`` at the foot of the perpendicular from ``x``)::
 
     delta = -n.P0   signed distance of x from the edge line (> 0: x on the
                     opaque side, the usual case for a hit point),
@@ -182,16 +182,21 @@ _INV_PI = 1.0 / math.pi
 class FsdEdges(NamedTuple):
     """Edges near each query point (world coordinates, metres).
 
-    ======  ==============================================================
-    p0, p1  ``mi.Point3f`` edge endpoints, width ``N*K`` (or ``K``)
-    apex0   ``mi.Point3f`` a point on the opaque side: the vertex opposite
-            the edge in its first adjacent face
-    apex1   ``mi.Point3f`` same for the second face (``= apex0`` for a
-            boundary edge); apexes on opposite sides of the projected edge
-            mark it as a non-silhouette (no diffraction)
-    valid   ``mi.Bool`` slot mask
-    k       ``int`` edges per query point ``K``
-    ======  ==============================================================
+    Parameters
+    ----------
+    p0, p1 : mi.Point3f
+        edge endpoints, width ``N*K`` (or ``K``)
+    apex0 : mi.Point3f
+        a point on the opaque side: the vertex opposite
+        the edge in its first adjacent face
+    apex1 : mi.Point3f
+        same for the second face (``= apex0`` for a
+        boundary edge); apexes on opposite sides of the projected edge
+        mark it as a non-silhouette (no diffraction)
+    valid : mi.Bool
+        slot mask
+    k : int
+        edges per query point ``K``
     """
 
     p0: object
@@ -228,13 +233,20 @@ class FsdEdges(NamedTuple):
     def from_vertices(cls, vertices, edge_set, idx, valid) -> "FsdEdges":
         """Gather endpoints and apexes from a (differentiable) vertex buffer.
 
-        ==========  ========================================================
-        vertices    ``mi.Point3f`` of width ``Nv`` or a flat ``mi.Float``
-                    ``[3 Nv]`` (Mitsuba's ``vertex_positions`` buffer);
-                    gradients of :func:`eval` flow back into it
-        edge_set    :class:`sionna_mmir.scene.edges.EdgeSet` of that mesh
-        idx, valid  ``[N, K]`` from :meth:`sionna_mmir.scene.edges.EdgeIndex.query`
-        ==========  ========================================================
+        Parameters
+        ----------
+        vertices : mi.Point3f or mi.Float
+            ``mi.Point3f`` of width ``Nv`` or a flat ``mi.Float``
+            ``[3 Nv]`` (Mitsuba's ``vertex_positions`` buffer);
+            gradients of :func:`eval` flow back into it
+        edge_set : EdgeSet
+            :class:`sionna_mmir.scene.edges.EdgeSet` of that mesh
+        idx, valid : numpy.ndarray
+            ``[N, K]`` from :meth:`sionna_mmir.scene.edges.EdgeIndex.query`
+
+        Returns
+        -------
+        FsdEdges
         """
         idx = np.asarray(idx, dtype=np.int64)
         valid = np.asarray(valid, dtype=bool)
@@ -498,18 +510,30 @@ def beta(d, x, edges, lam, s=None, opacity=1.0, beta_max=BETA_MAX, check=True):
 def eval(d, wo, x, edges, lam, s=None, opacity=1.0, beta_max=BETA_MAX, check=True):  # noqa: A001
     """FSD lobe value ``beta * sum_e (w_e/W) D_e(wo)`` [1/sr, no cosine].
 
-    ========  ===========================================================
-    d         ``mi.Vector3f`` unit propagation direction of the incident ray
-    wo        ``mi.Vector3f`` unit outgoing direction (world)
-    x         ``mi.Point3f`` hit point (screen origin)
-    edges     :class:`FsdEdges` (``N*K`` or ``K`` slots)
-    lam       wavelength [m]
-    s         Gaussian beam footprint width [m] (default ``3 lam``)
-    opacity   edge opacity in ``[0, 1]`` (e.g. the Fresnel energy gate)
-    beta_max  cap of the diffracted fraction
-    check     validate inputs (raises ``InputValueError`` for NaN / empty)
-    returns   ``mi.Float``
-    ========  ===========================================================
+    Parameters
+    ----------
+    d : mi.Vector3f
+        unit propagation direction of the incident ray
+    wo : mi.Vector3f
+        unit outgoing direction (world)
+    x : mi.Point3f
+        hit point (screen origin)
+    edges : FsdEdges
+        ``N*K`` or ``K`` slots
+    lam : float
+        wavelength [m]
+    s : float, optional
+        Gaussian beam footprint width [m] (default ``3 lam``)
+    opacity : float, optional
+        edge opacity in ``[0, 1]`` (e.g. the Fresnel energy gate)
+    beta_max : float, optional
+        cap of the diffracted fraction
+    check : bool, optional
+        validate inputs (raises ``InputValueError`` for NaN / empty)
+
+    Returns
+    -------
+    mi.Float
     """
     frame, terms, total = _setup(d, x, edges, lam, s, check, (("wo", wo),))
     b = dr.minimum(as_float(beta_max), total) * as_float(opacity)
@@ -525,12 +549,25 @@ def pdf(d, wo, x, edges, lam, s=None, check=True):
 def sample(d, x, edges, lam, s, u1, u2, check=True):
     """Importance-sample the FSD lobe (``s=None``: ``3 lam``).
 
-    ========  =============================================================
-    u1        ``mi.Float`` in ``[0, 1)``: picks edge ``e`` w.p. ``w_e / W``
-    u2        ``mi.Point2f`` in ``[0, 1)^2``: ``q_perp`` (x) and ``q_par`` (y)
-    returns   ``(wo, pdf)``; ``pdf == 0`` (and ``wo == d``) where no edge
-              diffracts or the draw fell outside the unit disc of directions
-    ========  =============================================================
+    Parameters
+    ----------
+    d, x, edges, lam, s
+        as in :func:`eval`
+    u1 : mi.Float
+        in ``[0, 1)``: picks edge ``e`` w.p. ``w_e / W``
+    u2 : mi.Point2f
+        in ``[0, 1)^2``: ``q_perp`` (x) and ``q_par`` (y)
+
+    check : bool, optional
+        validate inputs
+
+    Returns
+    -------
+    wo : mi.Vector3f
+        sampled direction (``wo == d`` where ``pdf == 0``)
+    pdf : mi.Float
+        its pdf; 0 where no edge diffracts or the draw fell outside the
+        unit disc of directions
     """
     u1 = as_float(u1)
     frame, terms, total = _setup(d, x, edges, lam, s, check, (("u1", u1), ("u2", u2.x)))

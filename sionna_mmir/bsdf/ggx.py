@@ -55,11 +55,16 @@ def _half(wi, wo):
 def eval(wi, wo, alpha):  # noqa: A001
     """GGX reflection value ``D G / (4 cos_i cos_o)`` (per sr, no cosine, no Fresnel).
 
-    =======  ==================================================
-    wi, wo   ``mi.Vector3f`` unit directions, local frame
-    alpha    GGX roughness (float or ``mi.Float``, differentiable)
-    returns  ``mi.Float``
-    =======  ==================================================
+    Parameters
+    ----------
+    wi, wo : mi.Vector3f
+        unit directions, local frame
+    alpha : float or mi.Float
+        GGX roughness (differentiable)
+
+    Returns
+    -------
+    mi.Float
     """
     h, ok = _half(wi, wo)
     valid = ok & (wi.z > 0) & (wo.z > 0) & (h.z > 0)
@@ -98,12 +103,21 @@ def sample_visible_normal(wi, u2, alpha):
 def sample(wi, u2, alpha):
     """Sample ``wo`` by reflecting ``wi`` about a VNDF-sampled microfacet normal.
 
-    =======  ==============================================
-    wi       ``mi.Vector3f`` incident direction (``wi.z > 0``)
-    u2       ``mi.Point2f`` uniform in ``[0,1)^2``
-    alpha    GGX roughness
-    returns  ``(wo, pdf)``; ``wo`` may lie below the surface
-    =======  ==============================================
+    Parameters
+    ----------
+    wi : mi.Vector3f
+        incident direction (``wi.z > 0``)
+    u2 : mi.Point2f
+        uniform in ``[0,1)^2``
+    alpha : float or mi.Float
+        GGX roughness
+
+    Returns
+    -------
+    wo : mi.Vector3f
+        sampled direction; may lie below the surface
+    pdf : mi.Float
+        its pdf
     """
     h = sample_visible_normal(wi, u2, alpha)
     wo = 2.0 * dr.dot(wi, h) * h - wi

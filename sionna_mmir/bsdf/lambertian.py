@@ -33,12 +33,21 @@ def pdf(wi, wo, params=None):
 def sample(wi, u2, params=None):
     """Cosine-weighted direction ``wo`` and its pdf for the 2-D uniform sample ``u2``.
 
-    ======  ==============================================
-    wi      ``mi.Vector3f`` incident direction (local)
-    u2      ``mi.Point2f`` uniform in ``[0,1)^2``
-    params  ignored
-    returns ``(wo, pdf)``; ``pdf = 0`` when ``wi.z <= 0``
-    ======  ==============================================
+    Parameters
+    ----------
+    wi : mi.Vector3f
+        incident direction (local)
+    u2 : mi.Point2f
+        uniform in ``[0,1)^2``
+    params : object, optional
+        ignored
+
+    Returns
+    -------
+    wo : mi.Vector3f
+        sampled direction
+    pdf : mi.Float
+        its pdf; 0 when ``wi.z <= 0``
     """
     wo = mi.warp.square_to_cosine_hemisphere(u2)
     return wo, pdf(wi, wo)

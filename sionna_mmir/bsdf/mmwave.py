@@ -52,13 +52,18 @@ KAPPA_DIR_MIN = 1.0
 class MMWaveParams:
     """Material parameters at one interaction (floats or ``mi.Float``).
 
-    ==========  ===================================================
-    sigma_h     RMS surface height [m]
-    l_c         surface correlation length [m] (> 0)
-    tau         KA / SPM blend in ``[0, 1]``
-    wavelength  free-space wavelength ``lambda`` [m]
-    gate        energy gate ``A`` in ``[0, 1]`` (default 1)
-    ==========  ===================================================
+    Parameters
+    ----------
+    sigma_h : float or mi.Float
+        RMS surface height [m]
+    l_c : float or mi.Float
+        surface correlation length [m] (> 0)
+    tau : float or mi.Float
+        KA / SPM blend in ``[0, 1]``
+    wavelength : float or mi.Float
+        free-space wavelength ``lambda`` [m]
+    gate : float or mi.Float, optional
+        energy gate ``A`` in ``[0, 1]`` (default 1)
     """
 
     sigma_h: Any
@@ -125,13 +130,23 @@ def pdf(wi, wo, params: MMWaveParams):
 def sample(wi, u1, u2, params: MMWaveParams):
     """Lobe-selection sampling.
 
-    =======  =======================================================
-    wi       ``mi.Vector3f`` incident direction (local frame)
-    u1       ``mi.Float`` uniform in ``[0,1)``: picks lobe ``i`` w.p. ``w_i``
-    u2       ``mi.Point2f`` uniform in ``[0,1)^2``: direction within the lobe
-    params   :class:`MMWaveParams`
-    returns  ``(wo, pdf)`` with ``pdf`` the mixture pdf of :func:`pdf`
-    =======  =======================================================
+    Parameters
+    ----------
+    wi : mi.Vector3f
+        incident direction (local frame)
+    u1 : mi.Float
+        uniform in ``[0,1)``: picks lobe ``i`` w.p. ``w_i``
+    u2 : mi.Point2f
+        uniform in ``[0,1)^2``: direction within the lobe
+    params : MMWaveParams
+        :class:`MMWaveParams`
+
+    Returns
+    -------
+    wo : mi.Vector3f
+        sampled direction
+    pdf : mi.Float
+        the mixture pdf of :func:`pdf`
     """
     w = params.weights(wi)
     lobes = _lobes(params)

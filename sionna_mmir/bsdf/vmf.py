@@ -44,11 +44,16 @@ def density(mu, wo, kappa):
 def eval(wi, wo, kappa):  # noqa: A001
     """Hemisphere-truncated vMF BSDF value (per sr, no cosine).
 
-    =======  =================================================
-    wi, wo   ``mi.Vector3f`` unit directions, local frame
-    kappa    concentration (float or ``mi.Float``, differentiable)
-    returns  ``mi.Float``
-    =======  =================================================
+    Parameters
+    ----------
+    wi, wo : mi.Vector3f
+        unit directions, local frame
+    kappa : float or mi.Float
+        concentration (differentiable)
+
+    Returns
+    -------
+    mi.Float
     """
     valid = (wi.z > 0) & (wo.z > 0)
     return dr.select(valid, density(reflect_z(wi), wo, kappa), mi.Float(0.0))
@@ -62,12 +67,21 @@ def pdf(wi, wo, kappa):
 def sample(wi, u2, kappa):
     """Sample ``wo ~ vMF(reflect(wi), kappa)`` on the full sphere (Wood 1994).
 
-    =======  ===============================================
-    wi       ``mi.Vector3f`` incident direction
-    u2       ``mi.Point2f`` uniform in ``[0,1)^2``
-    kappa    concentration
-    returns  ``(wo, pdf)``; ``wo`` may lie below the surface
-    =======  ===============================================
+    Parameters
+    ----------
+    wi : mi.Vector3f
+        incident direction
+    u2 : mi.Point2f
+        uniform in ``[0,1)^2``
+    kappa : float or mi.Float
+        concentration
+
+    Returns
+    -------
+    wo : mi.Vector3f
+        sampled direction; may lie below the surface
+    pdf : mi.Float
+        its pdf
     """
     k = _kappa(kappa)
     u = dr.maximum(u2.x, 1e-30)

@@ -2,13 +2,16 @@
 
 HDF5 layout (``format = "sionna_mmir.capture"``, ``version = 1``):
 
-=================  ===========================================================
-``/adc``           complex64 ``[n_frames, n_tx, n_rx, n_chirps, n_samples]``
-``/@radar``        JSON of :meth:`RadarConfig.to_dict` (floats round-trip exactly)
-``/@metadata``     JSON of the metadata dict
-``/@source``       where the data came from (file path or ``"synthetic"``)
-``/extras/<name>`` any extra arrays (e.g. TI's ``PeakValMat``)
-=================  ===========================================================
+``/adc``
+    complex64 ``[n_frames, n_tx, n_rx, n_chirps, n_samples]``
+``/@radar``
+    JSON of :meth:`RadarConfig.to_dict` (floats round-trip exactly)
+``/@metadata``
+    JSON of the metadata dict
+``/@source``
+    where the data came from (file path or ``"synthetic"``)
+``/extras/<name>``
+    any extra arrays (e.g. TI's ``PeakValMat``)
 
 Files are written to a temporary name and renamed, so a failed write never
 leaves a partial file behind.
@@ -33,16 +36,28 @@ FORMAT_VERSION = 1
 class Capture:
     """Raw FMCW ADC of one or more frames with the radar that recorded it.
 
-    ==============  ==========================================================
-    ``frames``      complex64 ``[n_frames, n_tx, n_rx, n_chirps, n_samples]``
-    ``radar``       the :class:`RadarConfig` (waveform, layout, pose)
-    ``metadata``    JSON-serialisable dict (e.g. ``frame_period`` [s])
-    ``source``      file path or ``"synthetic"``
-    ``extras``      name -> NumPy array of side information
-    ==============  ==========================================================
-
     ``capture.adc`` is the first frame, ``[n_tx, n_rx, n_chirps, n_samples]``;
     ``capture.frame(i)`` gives a one-frame capture of frame ``i``.
+
+    Parameters
+    ----------
+    frames : numpy.ndarray
+        complex64 ``[n_frames, n_tx, n_rx, n_chirps, n_samples]`` (a single
+        frame ``[n_tx, n_rx, n_chirps, n_samples]`` is accepted).
+    radar : RadarConfig
+        The radar (waveform, layout, pose).
+    metadata : dict, optional
+        JSON-serialisable metadata (e.g. ``frame_period`` [s]).
+    source : str, optional
+        File path or ``"synthetic"``.
+    extras : dict, optional
+        Name -> NumPy array of side information.
+
+    Raises
+    ------
+    InputValueError
+        A shape that is not the radar's ``[tx, rx, chirp, sample]``, or NaN /
+        Inf samples.
     """
 
     frames: np.ndarray

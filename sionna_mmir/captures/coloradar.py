@@ -129,17 +129,25 @@ def read_coloradar_run(run_dir, frame: int = 0, calib_dir=None,
                        sensor: str = "cascade") -> Capture:
     """Read frame ``frame`` of ``sensor`` from a ColoRadar run folder.
 
-    ===============  =========================================================
-    ``run_dir``      run folder (e.g. ``.../2_28_2021_outdoors_run0``)
-    ``frame``        frame index ``N`` of ``frame_N.bin``
-    ``calib_dir``    ColoRadar ``calib`` folder; default: a ``calib/`` found in
-                     ``run_dir`` or one of its parents
-    ``sensor``       ``"cascade"`` or ``"single_chip"``
-    ===============  =========================================================
-
     The radar is ``read_coloradar_config(calib_dir, sensor)`` (see
     :func:`~sionna_mmir.captures.coloradar_calib.read_coloradar_config`).
-    Returns a one-frame :class:`Capture` (see :func:`read_coloradar_frame`).
+
+    Parameters
+    ----------
+    run_dir : str or os.PathLike
+        Run folder (e.g. ``.../2_28_2021_outdoors_run0``).
+    frame : int, optional
+        Frame index ``N`` of ``frame_N.bin``.
+    calib_dir : str or os.PathLike, optional
+        ColoRadar ``calib`` folder; default: a ``calib/`` found in
+        ``run_dir`` or one of its parents.
+    sensor : {"cascade", "single_chip"}, optional
+        The ColoRadar sensor.
+
+    Returns
+    -------
+    Capture
+        One frame (see :func:`read_coloradar_frame`).
     """
     sensor = _check_sensor(sensor)
     run = pathlib.Path(run_dir)

@@ -317,16 +317,6 @@ def read_coupling_calib(path) -> np.ndarray:
 class PhaseFrequencyCalib:
     """ColoRadar cascade phase/frequency calibration (corner reflector).
 
-    ===================  ======================================================
-    ``frequency_bins``   float64 ``[num_tx, num_rx]`` corner peak bins, as stored
-    ``phase``            complex128 ``[num_tx, num_rx]`` complex peak values
-    ``slope``            calibration chirp slope [Hz/s]
-    ``sample_rate``      calibration sample rate [Hz]
-    ``interp_factor``    zero-padding factor ``I`` the bins are said to refer to
-    ``num_samples``      samples per chirp ``N`` of the calibration capture
-    ``source``           file the values came from
-    ===================  ======================================================
-
     Indices are ColoRadar file order (tx-major in the file).  The correction
     for channel ``i`` relative to channel 0 is ``p_0 / p_i`` (unit modulus)
     and ``exp(-j 2 pi (b_i - b_0) / (I N) (S / S_cal) (f_s,cal / f_s) n)``
@@ -340,6 +330,23 @@ class PhaseFrequencyCalib:
     values look like N-point bins with sub-bin interpolation.
     :meth:`corner_range` shows the implied corner distance for a choice of
     ``interp_factor``.
+
+    Parameters
+    ----------
+    frequency_bins : numpy.ndarray
+        float64 ``[num_tx, num_rx]`` corner peak bins, as stored.
+    phase : numpy.ndarray
+        complex128 ``[num_tx, num_rx]`` complex peak values.
+    slope : float
+        Calibration chirp slope [Hz/s].
+    sample_rate : float
+        Calibration sample rate [Hz].
+    interp_factor : int, optional
+        Zero-padding factor ``I`` the bins are said to refer to.
+    num_samples : int, optional
+        Samples per chirp ``N`` of the calibration capture.
+    source : str, optional
+        File the values came from.
     """
 
     frequency_bins: np.ndarray

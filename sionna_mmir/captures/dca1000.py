@@ -194,29 +194,39 @@ def read_dca1000(path, radar: RadarConfig | None = None, num_frames: int | None 
                  frame_period: float | None = None, layout: str = DEFAULT_LAYOUT) -> Capture:
     """Read a DCA1000 ``.bin`` capture.
 
-    ================  ========================================================
-    ``path``          the ``.bin`` file
-    ``radar``         waveform and layout of the returned frames; default
-                      :func:`default_radar` of ``layout`` (AWR1843, 3 Tx x
-                      4 Rx, 1 loop; ``pairs``: 64 samples at 1.25 Msps).
-                      ``radar.num_chirps`` loops per frame, Tx fired in
-                      ``radar.tdm_order``
-    ``num_frames``    read only the first frames (default: all)
-    ``frame_period``  [s] for ``metadata``; default with the default radar
-                      :func:`default_frame_period` (0.01 s ``pairs``, 0.02 s
-                      otherwise), else ``None``
-    ``layout``        byte layout, one of :data:`LAYOUTS` (module docstring);
-                      ``"ti"`` is TI's documented ``readDCA1000`` reading
-    ================  ========================================================
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.bin`` file.
+    radar : RadarConfig, optional
+        Waveform and layout of the returned frames; default
+        :func:`default_radar` of ``layout`` (AWR1843, 3 Tx x 4 Rx, 1 loop;
+        ``pairs``: 64 samples at 1.25 Msps).  ``radar.num_chirps`` loops per
+        frame, Tx fired in ``radar.tdm_order``.
+    num_frames : int, optional
+        Read only the first frames (default: all).
+    frame_period : float, optional
+        Frame period for ``metadata`` [s]; default with the default radar
+        :func:`default_frame_period` (0.01 s ``pairs``, 0.02 s otherwise),
+        else ``None``.
+    layout : str, optional
+        Byte layout, one of :data:`LAYOUTS` (module docstring); ``"ti"`` is
+        TI's documented ``readDCA1000`` reading.
 
-    Returns a :class:`Capture` with complex64 frames ``[n_frames, n_tx, n_rx,
-    num_chirps, num_samples]`` in ADC units (int16 counts), indexed by Tx
-    index (slot ``s`` of a loop is Tx ``radar.tdm_order[s]``).
-    ``metadata["iq_conjugated"]`` is False (targets at positive beat
-    frequency); ``metadata["layout"]`` names the layout.
+    Returns
+    -------
+    Capture
+        complex64 frames ``[n_frames, n_tx, n_rx, num_chirps, num_samples]``
+        in ADC units (int16 counts), indexed by Tx index (slot ``s`` of a loop
+        is Tx ``radar.tdm_order[s]``).  ``metadata["iq_conjugated"]`` is False
+        (targets at positive beat frequency); ``metadata["layout"]`` names the
+        layout.
 
-    An empty file or a size that is not a whole number of frames raises
-    :class:`CaptureFormatError` naming the file and the frame size.
+    Raises
+    ------
+    CaptureFormatError
+        An empty file or a size that is not a whole number of frames (the
+        message names the file and the frame size).
     """
     layout = _check_layout(layout)
     path = os.fspath(path)

@@ -43,21 +43,34 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
                  calib_dir=None, sensor: str = "cascade") -> Capture:
     """Load a capture from ``path`` (see the module table for the dispatch).
 
-    ===============  =========================================================
-    ``path``         file or ColoRadar run folder
-    ``frame``        frame index: for a run folder the ``N`` of
-                     ``frame_N.bin`` (default 0); for multi-frame files the
-                     frame to keep (default: all frames)
-    ``radar``        radar for ``.bin`` files (DCA1000 default
-                     ``RadarConfig.awr1843()``; ColoRadar frames default to
-                     the calibration found in ``calib_dir`` or upward)
-    ``calib_dir``    ColoRadar ``calib`` folder
-    ``sensor``       ColoRadar sensor, ``"cascade"`` or ``"single_chip"``
-    ===============  =========================================================
+    Parameters
+    ----------
+    path : str or os.PathLike
+        File or ColoRadar run folder.
+    frame : int, optional
+        Frame index: for a run folder the ``N`` of ``frame_N.bin`` (default
+        0); for multi-frame files the frame to keep (default: all frames).
+    radar : RadarConfig, optional
+        Radar for ``.bin`` files (DCA1000 default ``RadarConfig.awr1843()``;
+        ColoRadar frames default to the calibration found in ``calib_dir`` or
+        upward).
+    calib_dir : str or os.PathLike, optional
+        ColoRadar ``calib`` folder.
+    sensor : {"cascade", "single_chip"}, optional
+        ColoRadar sensor.
 
-    Returns a :class:`Capture`.  A missing path raises ``FileNotFoundError``,
-    an unknown extension :class:`CaptureFormatError` listing the supported
-    formats, a frame index out of range ``IndexError``.
+    Returns
+    -------
+    Capture
+
+    Raises
+    ------
+    FileNotFoundError
+        A missing path.
+    CaptureFormatError
+        An unknown extension (the message lists the supported formats).
+    IndexError
+        A frame index out of range.
     """
     from .coloradar import (coloradar_radar, find_frame_file, frame_index_from_name,
                             read_coloradar_frame, read_coloradar_run)

@@ -57,15 +57,26 @@ def openradar_radar(num_tx: int, num_rx: int, num_chirps: int) -> RadarConfig:
 def read_openradar_npy(path) -> Capture:
     """Read an OpenRadar example array.
 
-    ==========================  ==============================================
-    file shape                  Capture frames (complex64, ADC counts)
-    ==========================  ==============================================
-    ``[chirp, 8, 128]``         ``[1, 2 tx, 4 rx, chirp, 128]``, ``v = tx*4+rx``
-    ``[chirp, 128]``            ``[1, 1 tx, 1 rx, chirp, 128]``
-    ==========================  ==============================================
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.npy`` file: integers in ``[0, 65535]`` (unsigned 16-bit
+        stored in a complex array), shape ``[chirp, 8, 128]`` or ``[chirp,
+        128]``.
 
-    Values must be integers in ``[0, 65535]`` (unsigned 16-bit stored in a
-    complex array); other shapes or values raise :class:`CaptureFormatError`.
+    Returns
+    -------
+    Capture
+        Frames (complex64, ADC counts): ``[1, 2 tx, 4 rx, chirp, 128]`` with
+        ``v = tx*4+rx`` for a ``[chirp, 8, 128]`` file, ``[1, 1 tx, 1 rx,
+        chirp, 128]`` for a ``[chirp, 128]`` file.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    CaptureFormatError
+        Other shapes or values.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):

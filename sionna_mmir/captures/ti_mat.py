@@ -88,34 +88,39 @@ def _scalar(path, params, key):
 def read_ti_mat(path) -> Capture:
     """Read a TI MMWCAS calibration ``.mat`` file.
 
-    Returns a one-frame :class:`Capture`:
-
-    ===============  ==========================================================
-    ``frames``       complex64 ``[1, 12, 16, 1, N]`` (N = 256): the raw
-                     chirp-averaged ADC, indexed ``[device Tx 1..12, device
-                     Rx 1..16, 1, sample]`` like :meth:`RadarConfig.mmwcas`
-    ``radar``        ``RadarConfig.mmwcas(num_chirps=1, slope=params.
-                     Slope_MHzperus * 1e12, sample_rate=params.
-                     Sampling_Rate_sps, num_samples=N)``
-    ``extras``       ``RangeMat`` int32 ``[tx, rx]`` (1-based fine bins of the
-                     5N FFT), ``PeakValMat`` complex128 ``[tx, rx]``,
-                     ``AngleMat`` float64 ``[tx, rx]`` [deg], ``RxMismatch``
-                     float64 ``[16]`` [deg], ``TxMismatch`` float64 ``[12]``
-                     [deg], all in device order (``Rx_fft`` itself is not
-                     kept: it is ``fft(adc * w / rms(w), 5N)``)
-    ``metadata``     ``file``, ``format="ti_mat"``, ``chirps_averaged=True``,
-                     ``frame_period=None``, ``iq_conjugated=False``
-    ===============  ==========================================================
-
     Re-indexing: the file's Tx axis (``Rx_fft`` axis 2 and the first axis of
     ``RangeMat``/``PeakValMat``/``AngleMat``) is the enable order 12..1; it is
     reversed, so index ``k`` is device Tx ``k + 1``.  ``TxMismatch`` (3 x 4) is
     flattened column-major (enable order) then reversed; ``RxMismatch`` is
     flattened.  Optional matrices that are absent are left out.
 
-    Missing ``calibResult`` / ``Rx_fft`` / ``params``, a non-complex or
-    wrongly shaped ``Rx_fft``, or an ``Rx_fft`` that is not a 5x zero-padded
-    FFT raise :class:`CaptureFormatError` naming the file.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.mat`` file.
+
+    Returns
+    -------
+    Capture
+        One frame.  ``frames``: complex64 ``[1, 12, 16, 1, N]`` (N = 256), the
+        raw chirp-averaged ADC, indexed ``[device Tx 1..12, device Rx 1..16,
+        1, sample]`` like :meth:`RadarConfig.mmwcas`.  ``radar``:
+        ``RadarConfig.mmwcas(num_chirps=1, slope=params.Slope_MHzperus * 1e12,
+        sample_rate=params.Sampling_Rate_sps, num_samples=N)``.  ``extras``:
+        ``RangeMat`` int32 ``[tx, rx]`` (1-based fine bins of the 5N FFT),
+        ``PeakValMat`` complex128 ``[tx, rx]``, ``AngleMat`` float64 ``[tx,
+        rx]`` [deg], ``RxMismatch`` float64 ``[16]`` [deg], ``TxMismatch``
+        float64 ``[12]`` [deg], all in device order (``Rx_fft`` itself is not
+        kept: it is ``fft(adc * w / rms(w), 5N)``).  ``metadata``: ``file``,
+        ``format="ti_mat"``, ``chirps_averaged=True``, ``frame_period=None``,
+        ``iq_conjugated=False``.
+
+    Raises
+    ------
+    CaptureFormatError
+        Missing ``calibResult`` / ``Rx_fft`` / ``params``, a non-complex or
+        wrongly shaped ``Rx_fft``, or an ``Rx_fft`` that is not a 5x
+        zero-padded FFT (the message names the file).
     """
     import scipy.io
 

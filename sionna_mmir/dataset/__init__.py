@@ -1,11 +1,16 @@
 """Radar datasets: render frames over scenes x radars x poses into sharded HDF5.
 
-``spec``     JSON spec -> :class:`DatasetSpec`; :func:`plan_frames` (one
-             manifest entry per frame)
-``poses``    explicit poses, straight-line and circular trajectories
-``render``   :func:`render_frame` (manifest entry -> ADC, bit-reproducible)
-``shards``   atomic HDF5 shards with completion marker and checksum
-``runner``   :func:`run_dataset`: lock, manifest, resume, Ray or one process
+``spec``
+    JSON spec -> :class:`DatasetSpec`; :func:`plan_frames` (one
+    manifest entry per frame)
+``poses``
+    explicit poses, straight-line and circular trajectories
+``render``
+    :func:`render_frame` (manifest entry -> ADC, bit-reproducible)
+``shards``
+    atomic HDF5 shards with completion marker and checksum
+``runner``
+    :func:`run_dataset`: lock, manifest, resume, Ray or one process
 
 ``sionna-mmir dataset`` is the command line; ``docs/dataset.md`` the guide.
 """

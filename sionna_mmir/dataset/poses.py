@@ -10,19 +10,20 @@ Every pose is a ``dict``::
 
 Spec forms (``poses`` of a dataset spec; angles in degrees there):
 
-``{"type": "list", "poses": [{"position": [x, y, z], "orientation_deg": [yaw, pitch, roll],
-"velocity": [vx, vy, vz]}, ...]}``
-    ``orientation_deg`` and ``velocity`` default to zero; ``time`` is
-    ``k * frame_period``.
-``{"type": "line", "start": [x, y, z], "direction": [dx, dy, dz], "speed": v, "frames": N,
-"frame_period": T, "orientation_deg": [...]}``
-    position ``start + k T v d`` (``d`` normalised), velocity ``v d``;
-    the radar faces along ``d`` unless ``orientation_deg`` is given.
-``{"type": "circle", "center": [x, y, z], "radius": r, "speed": v, "frames": N,
-"frame_period": T, "start_angle_deg": a0, "facing": "center" | "tangent" | "outward"}``
-    counter-clockwise about ``+z`` at height ``center[2]``: angle
-    ``a0 + k T v / r``, velocity ``v`` along the tangent; the radar faces the
-    centre (default), along the tangent or outwards, level (pitch = roll = 0).
+* ``{"type": "list", "poses": [{"position": [x, y, z], "orientation_deg":
+  [yaw, pitch, roll], "velocity": [vx, vy, vz]}, ...]}``:
+  ``orientation_deg`` and ``velocity`` default to zero; ``time`` is
+  ``k * frame_period``.
+* ``{"type": "line", "start": [x, y, z], "direction": [dx, dy, dz], "speed":
+  v, "frames": N, "frame_period": T, "orientation_deg": [...]}``: position
+  ``start + k T v d`` (``d`` normalised), velocity ``v d``; the radar faces
+  along ``d`` unless ``orientation_deg`` is given.
+* ``{"type": "circle", "center": [x, y, z], "radius": r, "speed": v,
+  "frames": N, "frame_period": T, "start_angle_deg": a0, "facing": "center" |
+  "tangent" | "outward"}``: counter-clockwise about ``+z`` at height
+  ``center[2]``: angle ``a0 + k T v / r``, velocity ``v`` along the tangent;
+  the radar faces the centre (default), along the tangent or outwards, level
+  (pitch = roll = 0).
 
 ``frame_period`` defaults to 0.1 s.
 """

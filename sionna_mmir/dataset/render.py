@@ -44,14 +44,15 @@ def load_entry_scene(scene: dict):
 def render_frame(entry: dict) -> np.ndarray:
     """Raw ADC of one manifest entry, complex64 ``[tx, rx, chirp, sample]``.
 
-    ======  ==============================================================
-    entry   a frame of ``manifest.json`` (:func:`~.spec.plan_frames`):
-            ``scene``, ``radar`` (``RadarConfig.to_dict``, posed),
-            ``pose`` (``velocity`` [m/s] -> Doppler), ``seed``, ``solver``
-    ======  ==============================================================
-
     The result is a deterministic function of the entry: the same entry
     renders the same bits in any process and at any Dr.Jit thread count.
+
+    Parameters
+    ----------
+    entry : dict
+        a frame of ``manifest.json`` (:func:`~.spec.plan_frames`):
+        ``scene``, ``radar`` (``RadarConfig.to_dict``, posed),
+        ``pose`` (``velocity`` [m/s] -> Doppler), ``seed``, ``solver``
     """
     from ..paths import RadarPathSolver
     from ..paths.render import to_numpy

@@ -173,20 +173,32 @@ def run_dataset(spec, out, *, workers: int = 0, address: str | None = None,
                 on_shard=None) -> dict:
     """Render a dataset into ``out`` (see module docstring).
 
-    ========  ==========================================================
-    spec      :class:`~.spec.DatasetSpec` or spec file path
-    out       output folder
-    workers   parallel Ray tasks (0: all local CPUs); 1: this process
-    address   Ray cluster address (``"auto"``, ``"ray://host:10001"``)
-    overwrite replace a dataset of another spec (and re-render all)
-    progress  tqdm progress bar over frames
-    threads   Dr.Jit threads per Ray task
-    on_shard  ``callable(shard_name)`` after each shard is written (a
-              fault-injection hook for tests)
-    returns   ``dict``: frames, shards, rendered / skipped shard names,
-              mode (``"ray"`` | ``"local"`` | ``"local (ray not
-              installed)"``), workers, seconds, frames_per_second
-    ========  ==========================================================
+    Parameters
+    ----------
+    spec : DatasetSpec or str or os.PathLike
+        :class:`~.spec.DatasetSpec` or spec file path.
+    out : str or os.PathLike
+        Output folder.
+    workers : int, optional
+        parallel Ray tasks (0: all local CPUs); 1: this process
+    address : str, optional
+        Ray cluster address (``"auto"``, ``"ray://host:10001"``)
+    overwrite : bool, optional
+        replace a dataset of another spec (and re-render all)
+    progress : bool, optional
+        tqdm progress bar over frames
+    threads : int, optional
+        Dr.Jit threads per Ray task
+    on_shard : callable, optional
+        ``callable(shard_name)`` after each shard is written (a
+        fault-injection hook for tests)
+
+    Returns
+    -------
+    dict
+        frames, shards, rendered / skipped shard names,
+        mode (``"ray"`` | ``"local"`` | ``"local (ray not
+        installed)"``), workers, seconds, frames_per_second
     """
     spec = spec if isinstance(spec, DatasetSpec) else load_spec(spec)
     out = os.fspath(out)

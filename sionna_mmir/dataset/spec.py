@@ -54,16 +54,23 @@ _KEYS = {"scenes", "radars", "poses", "solver", "seed", "frames_per_shard"}
 class DatasetSpec:
     """A validated spec (plain JSON-able values, absolute paths).
 
-    ================  =====================================================
-    scenes            list of scene entries (``name``, ``source`` or
-                      ``meshes``, ``materials``, ``allow_out_of_band``)
-    radars            list of ``{"name", "config"}``: ``RadarConfig.to_dict``
-    poses             list of pose dicts (:mod:`.poses`)
-    solver            ``RadarPathSolver`` options
-    seed              base seed
-    frames_per_shard  frames per HDF5 shard
-    path              the spec file (messages)
-    ================  =====================================================
+    Parameters
+    ----------
+    scenes : list
+        list of scene entries (``name``, ``source`` or
+        ``meshes``, ``materials``, ``allow_out_of_band``)
+    radars : list
+        list of ``{"name", "config"}``: ``RadarConfig.to_dict``
+    poses : list
+        list of pose dicts (:mod:`.poses`)
+    solver : dict
+        ``RadarPathSolver`` options
+    seed : int
+        base seed
+    frames_per_shard : int
+        frames per HDF5 shard
+    path : str, optional
+        the spec file (messages)
     """
 
     scenes: list

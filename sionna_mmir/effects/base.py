@@ -27,12 +27,16 @@ STAGES = {0: "scene", 1: "rf", 2: "if", 3: "adc"}
 class ParamSpec:
     """One named parameter block of an effect.
 
-    ==========  ===============================================================
-    ``init``    float64 initial value (its shape is the block's shape)
-    ``lower``   lower bound (scalar or same shape), ``-inf`` for none
-    ``upper``   upper bound, ``+inf`` for none
-    ``unit``    unit of the stored value, for reports
-    ==========  ===============================================================
+    Parameters
+    ----------
+    init : numpy.ndarray
+        float64 initial value (its shape is the block's shape)
+    lower : float or numpy.ndarray, optional
+        lower bound (scalar or same shape), ``-inf`` for none
+    upper : float or numpy.ndarray, optional
+        upper bound, ``+inf`` for none
+    unit : str, optional
+        unit of the stored value, for reports
     """
 
     init: np.ndarray
@@ -63,12 +67,16 @@ class Effect:
     """Base class.  Subclasses set the class attributes and implement
     :meth:`param_specs` and :meth:`apply` (mean) or :meth:`variance`.
 
-    ===============  ==========================================================
-    ``name``         registry key, e.g. ``"channel_gain"``
-    ``kind``         ``"mean"`` or ``"variance"``
-    ``stage``        0 scene, 1 RF, 2 IF, 3 ADC (order in the chain)
-    ``description``  one line for reports
-    ===============  ==========================================================
+    Attributes
+    ----------
+    name : str
+        Registry key, e.g. ``"channel_gain"``.
+    kind : {"mean", "variance"}
+        What the effect changes: the mean or the variance of the capture.
+    stage : int
+        0 scene, 1 RF, 2 IF, 3 ADC (order in the chain).
+    description : str
+        One line for reports.
     """
 
     name = "effect"

@@ -20,19 +20,25 @@ IF_BAND_START = -0.1      # complex IF band [-0.1 f_s, 0.9 f_s): see band_freque
 class EffectContext:
     """Radar and axes of one capture.
 
-    ================  ========================================================
-    ``radar``         :class:`~sionna_mmir.radar.RadarConfig`
-    ``num_frames``    ``F``
-    ``frame_period``  seconds between frames (0 when unknown / one frame)
-    ``tx_chip``       ``[T]`` int, chip (LO / receive path group) of each Tx
-    ``rx_chip``       ``[R]`` int, chip of each Rx
-    ``basis``         the base model split per object
-                      (:class:`~sionna_mmir.effects.scene_basis.SceneBasis`),
-                      for the scene-side effects; ``None`` without one
-    ================  ========================================================
-
     The chip grouping defaults to the TI MMWCAS cascade (4 chips of 3 Tx and
     4 Rx, in array index order) for a 12 x 16 radar and one chip otherwise.
+
+    Parameters
+    ----------
+    radar : RadarConfig
+        :class:`~sionna_mmir.radar.RadarConfig`
+    num_frames : int, optional
+        ``F``
+    frame_period : float, optional
+        seconds between frames (0 when unknown / one frame)
+    tx_chip : numpy.ndarray, optional
+        ``[T]`` int, chip (LO / receive path group) of each Tx
+    rx_chip : numpy.ndarray, optional
+        ``[R]`` int, chip of each Rx
+    basis : SceneBasis, optional
+        The base model split per object
+        (:class:`~sionna_mmir.effects.scene_basis.SceneBasis`), for the
+        scene-side effects; ``None`` without one.
     """
 
     radar: RadarConfig

@@ -59,11 +59,14 @@ class Component:
 class EffectModel:
     """Base render + effects; see the module docstring.
 
-    ==============  ==========================================================
-    ``ctx``         :class:`~.context.EffectContext`
-    ``measured``    complex ``[F, T, R, C, N]`` (or ``[T, R, C, N]``) capture ADC
-    ``base``        complex, same shape: the base model's ADC (may be all zero)
-    ==============  ==========================================================
+    Parameters
+    ----------
+    ctx : EffectContext
+        :class:`~.context.EffectContext`
+    measured : numpy.ndarray
+        complex ``[F, T, R, C, N]`` (or ``[T, R, C, N]``) capture ADC
+    base : numpy.ndarray
+        complex, same shape: the base model's ADC (may be all zero)
     """
 
     def __init__(self, ctx: EffectContext, measured, base=None):

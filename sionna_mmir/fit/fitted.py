@@ -6,7 +6,7 @@
 latents), ``"<object>.normals"`` (``[Nv, 3]``), ``"<object>.positions"``
 (``[Nv, 3]`` [m]), ``"beam.{tx,rx}.*"`` and ``"pose.*"``.  The meshes
 themselves are not stored: pass the meshes the fit was given, prepared the
-same way (``--denoise`` / ``--planes`` / ``--shading``), so that every object
+same way (``--scaffold`` / ``--shading``), so that every object
 has the checkpoint's vertex count.
 
 Materials, normals and positions are written into the scene.  Beam-pattern
@@ -37,7 +37,7 @@ def fitted_fields(latents: dict, scene, normals_smoothing: float = 0.0,
     scene : RadarScene
         The scene they belong to.
     normals_smoothing, materials_smoothing : float, optional
-        The fit's Laplacian ``lambda``s (``--normals-smoothing`` /
+        The fit's Laplacian parameters ``lambda`` (``--normals-smoothing`` /
         ``--materials-smoothing``; 0 = raw per-vertex latents).
     source : str, optional
         Name of the checkpoint in error messages.
@@ -94,7 +94,7 @@ def load_fitted_scene(meshes, checkpoint, *, materials: dict | None = None, rada
     radar : RadarConfig, optional
         Initial radar and pose of the scene.
     normals_smoothing, materials_smoothing : float, optional
-        The fit's Laplacian ``lambda``s.
+        The fit's Laplacian parameters ``lambda``.
 
     Returns
     -------

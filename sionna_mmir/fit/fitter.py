@@ -29,13 +29,18 @@ CHECKPOINT_FORMAT = "sionna_mmir.fit_checkpoint"
 class FitResult:
     """Outcome of :func:`fit`.
 
-    ===============  ==================================================
-    latents          ``dict name -> np.ndarray`` final latents
-    history          ``np.ndarray`` [iterations] loss per iteration
-    seconds_per_it   mean wall time of the iterations run here [s]
-    iterations       iterations completed (including resumed ones)
-    resumed_from     iteration the run resumed from (0 = fresh)
-    ===============  ==================================================
+    Parameters
+    ----------
+    latents : dict
+        Name -> ``np.ndarray``: the final latents.
+    history : numpy.ndarray
+        ``[iterations]`` loss per iteration.
+    seconds_per_it : float
+        mean wall time of the iterations run here [s]
+    iterations : int
+        iterations completed (including resumed ones)
+    resumed_from : int, optional
+        iteration the run resumed from (0 = fresh)
     """
 
     latents: dict
@@ -106,26 +111,42 @@ def fit(model, target, *, iterations: int = 100, lr: float = 0.05, schedule: str
         stop_after: int | None = None) -> FitResult:
     """Fit ``model`` to ``target`` by Adam on the min-max RA loss.
 
-    ================  =======================================================
-    model             :class:`~sionna_mmir.fit.models.MMIRModel` (or the
-                      Sionna baseline: anything with ``latents``,
-                      ``lr_scales``, ``render``, ``radar``)
-    target            measured RA map ``[n_range, n_azimuth]`` or complex
-                      ADC ``radar.adc_shape``
-    iterations        total Adam steps
-    lr, schedule      base learning rate and ``"cosine"`` | ``"exponential"``
-                      | ``"constant"`` (:func:`~sionna_mmir.fit.adam.schedule_lr`)
-    seed              base seed; iteration ``i`` renders with ``seed + i``
-    checkpoint        HDF5 path (written atomically every
-                      ``checkpoint_every`` iterations and at the end)
-    resume            continue from ``checkpoint`` if it exists (its settings
-                      must match, else ``ConfigError``)
-    progress          tqdm progress bar with the loss
-    ra_kwargs         options of the range-azimuth processing
-    stop_after        stop after this many iterations in *this* call (to
-                      simulate a killed run in tests)
-    returns           :class:`FitResult`
-    ================  =======================================================
+    Parameters
+    ----------
+    model : MMIRModel or SionnaModel
+        :class:`~sionna_mmir.fit.models.MMIRModel` (or the
+        Sionna baseline: anything with ``latents``,
+        ``lr_scales``, ``render``, ``radar``)
+    target : numpy.ndarray
+        measured RA map ``[n_range, n_azimuth]`` or complex
+        ADC ``radar.adc_shape``
+    iterations : int, optional
+        total Adam steps
+    lr : float, optional
+        base learning rate
+    schedule : {"cosine", "exponential", "constant"}, optional
+        learning-rate schedule (:func:`~sionna_mmir.fit.adam.schedule_lr`)
+    seed : int, optional
+        base seed; iteration ``i`` renders with ``seed + i``
+    checkpoint : str, optional
+        HDF5 path (written atomically every
+        ``checkpoint_every`` iterations and at the end)
+    checkpoint_every : int, optional
+        iterations between checkpoints
+    resume : bool, optional
+        continue from ``checkpoint`` if it exists (its settings
+        must match, else ``ConfigError``)
+    progress : bool, optional
+        tqdm progress bar with the loss
+    ra_kwargs : dict, optional
+        options of the range-azimuth processing
+    stop_after : int, optional
+        stop after this many iterations in *this* call (to
+        simulate a killed run in tests)
+
+    Returns
+    -------
+    FitResult
     """
     import drjit as dr
     from tqdm import tqdm

@@ -28,31 +28,38 @@ LEARNABLE = ("materials", "normals", "beam", "positions", "pose")
 class MMIRModel:
     """mmIR model: per-vertex materials, normals, beam patterns (+ positions, pose).
 
-    ================  ========================================================
-    scene             :class:`~sionna_mmir.scene.RadarScene`
-    radar             :class:`~sionna_mmir.radar.RadarConfig` (default
-                      ``scene.radar``)
-    learn             subset of ``("materials", "normals", "beam",
-                      "positions", "pose")`` (paper default: the first three)
-    tx_pattern,       element patterns; default one learnable
-    rx_pattern        :class:`~sionna_mmir.radio_devices.CosinePowerPattern`
-                      per element
-    solver_options    :class:`~sionna_mmir.paths.SolverOptions` of every
-                      render (a dict changes fields of the default); default
-                      :meth:`SolverOptions.fit` (depth 2, paths 60 dB
-                      under the strongest dropped before their
-                      per-element legs: invisible in a min-max RA loss)
-    normals_smoothing ``lambda`` of the Laplacian ("large steps")
-                      parameterisation of the learned normals
-                      (:mod:`~sionna_mmir.fit.smooth_param`; Nicolet et al.
-                      2021): the latents are ``(I + lambda L) n`` per object,
-                      so per-vertex noise in the steps is averaged over
-                      ``~sqrt(lambda)`` edges while a whole surface can still
-                      tilt (default 0: raw per-vertex normals)
-    materials_        the same for the materials' latents (a spatial
-    smoothing         smoothness prior on the six per-vertex parameters;
-                      default 0)
-    ================  ========================================================
+    Parameters
+    ----------
+    scene : RadarScene
+        The scene (:class:`~sionna_mmir.scene.RadarScene`).
+    radar : RadarConfig, optional
+        :class:`~sionna_mmir.radar.RadarConfig` (default
+        ``scene.radar``)
+    learn : tuple, optional
+        subset of ``("materials", "normals", "beam",
+        "positions", "pose")`` (paper default: the first three)
+    tx_pattern, rx_pattern : BeamPattern, optional
+        element patterns; default one learnable
+        :class:`~sionna_mmir.radio_devices.CosinePowerPattern`
+        per element
+    solver_options : SolverOptions or dict, optional
+        :class:`~sionna_mmir.paths.SolverOptions` of every
+        render (a dict changes fields of the default); default
+        :meth:`SolverOptions.fit` (depth 2, paths 60 dB
+        under the strongest dropped before their
+        per-element legs: invisible in a min-max RA loss)
+    normals_smoothing : float, optional
+        ``lambda`` of the Laplacian ("large steps")
+        parameterisation of the learned normals
+        (:mod:`~sionna_mmir.fit.smooth_param`; Nicolet et al.
+        2021): the latents are ``(I + lambda L) n`` per object,
+        so per-vertex noise in the steps is averaged over
+        ``~sqrt(lambda)`` edges while a whole surface can still
+        tilt (default 0: raw per-vertex normals)
+    materials_smoothing : float, optional
+        the same for the materials' latents (a spatial
+        smoothness prior on the six per-vertex parameters;
+        default 0)
     """
 
     def __init__(self, scene, radar=None, *, learn=("materials", "normals", "beam"),
@@ -120,7 +127,7 @@ class MMIRModel:
         150k mesh 0.64 -> 0.44). On a *denoised* scaffold (normals within
         ~0.1 deg already) even this step costs accuracy (lab, 12 iterations:
         0.821 with normals vs 0.855 without); leave them out of ``learn``
-        there (NOTES.md, session 6).
+        there.
         """
         out = {}
         for k in self.latents():

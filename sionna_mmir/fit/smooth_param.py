@@ -14,12 +14,12 @@ positive definite), so a gradient ``g_x`` pulls back to ``g_u = A^-1 g_x``:
 
 Used for the shading normals: on a denoised LiDAR scaffold they are within
 ~0.1 deg of the truth, and independent per-vertex steps of that size already
-break the coherence of the physical-optics sums of flat walls (NOTES.md,
-session 6).  Smoothing does not cure that: on the benchmark (20 iterations,
-lambda 500) learned normals still cost accuracy (mean RA correlation 0.670
-vs 0.774 without them, ``comparisons/with_normals/``); it is the tool for
-scaffolds whose normals are noisy, and the default is off.  ``A`` is factorised once (SciPy SuperLU); each forward map and
-pull-back is a pair of triangular solves per column.
+break the coherence of the physical-optics sums of flat walls.  Smoothing
+does not cure that: on the benchmark (20 iterations, lambda 500) learned
+normals still cost accuracy (mean RA correlation 0.670 vs 0.774 without them,
+``comparisons/with_normals/``); it is the tool for scaffolds whose normals
+are noisy, and the default is off.  ``A`` is factorised once (SciPy SuperLU);
+each forward map and pull-back is a pair of triangular solves per column.
 
 ==========  ================================================================
 faces       (F, 3) int vertex indices of one mesh

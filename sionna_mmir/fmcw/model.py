@@ -13,7 +13,7 @@ and ``rho = d tau / dt`` the delay rate (``2 v / c`` for a monostatic target
 receding at ``v``).  The delay is advanced to each chirp's start (slow time,
 exact across chirps *and* TDM slots) and the intra-chirp Doppler shift
 ``f0 rho`` is kept; only the second-order term ``S rho t_k^2`` is dropped
-(below 0.01 rad for |v| < 10 m/s on the cascade waveform).  With ``rho``
+(below 0.01 rad for ``|v| < 10`` m/s on the cascade waveform).  With ``rho``
 absent every chirp is identical.
 
 Amplitudes ``a`` [any unit, e.g. sqrt(W)] and delays ``tau`` [s] are per

@@ -58,14 +58,20 @@ _WHERE = "synthesize_adc_factorised"
 class FactorInputs:
     """Validated factorised paths (NumPy, float64 / complex128).
 
-    ==========  ==========================================================
-    c           complex ``[P]``: per-path amplitude (beat convention)
-    g_t         ``[T, P]``: Tx-leg gain (dimensionless)
-    tau_t       ``[T, P]``: Tx-leg delay [s]
-    g_r         ``[R, P]``: Rx-leg gain (dimensionless)
-    tau_r       ``[R, P]``: Rx-leg delay [s]
-    rho         ``[P]``: delay rate ``d tau / dt`` [s/s], or ``None`` (static)
-    ==========  ==========================================================
+    Parameters
+    ----------
+    c : numpy.ndarray
+        complex ``[P]``: per-path amplitude (beat convention)
+    g_t : numpy.ndarray
+        ``[T, P]``: Tx-leg gain (dimensionless)
+    tau_t : numpy.ndarray
+        ``[T, P]``: Tx-leg delay [s]
+    g_r : numpy.ndarray
+        ``[R, P]``: Rx-leg gain (dimensionless)
+    tau_r : numpy.ndarray
+        ``[R, P]``: Rx-leg delay [s]
+    rho : numpy.ndarray, optional
+        ``[P]``: delay rate ``d tau / dt`` [s/s], or ``None`` (static)
     """
 
     c: np.ndarray
@@ -397,22 +403,35 @@ class FactorisedSynthesis:
 def synthesize_adc_factorised(radar: RadarConfig, c, g_t, tau_t, g_r, tau_r, tau_rate=None) -> np.ndarray:
     """Raw complex baseband FMCW ADC from factorised paths (NumPy).
 
-    ==============  =========================================================
-    Parameter       Meaning
-    ==============  =========================================================
-    ``radar``       :class:`~sionna_mmir.radar.RadarConfig` (``T`` Tx, ``R`` Rx)
-    ``c``           complex ``[P]``, per-path amplitude (beat convention)
-    ``g_t``         ``[T, P]``, Tx-leg gain
-    ``tau_t``       ``[T, P]``, Tx-leg delay [s]
-    ``g_r``         ``[R, P]``, Rx-leg gain
-    ``tau_r``       ``[R, P]``, Rx-leg delay [s]
-    ``tau_rate``    optional ``[P]``, delay rate ``d tau / dt`` [s/s]
-    ==============  =========================================================
-
     Equals ``synthesize_adc(radar, c g_t g_r, tau_t + tau_r, tau_rate)`` on
-    the ``[T, R, P]`` expansion.  Returns complex64
-    ``[T, R, num_chirps, num_samples]``.  NaN / Inf or wrong shapes raise
-    :class:`~sionna_mmir.errors.InputValueError` naming the argument.
+    the ``[T, R, P]`` expansion.
+
+    Parameters
+    ----------
+    radar : RadarConfig
+        Waveform and layout (``T`` Tx, ``R`` Rx).
+    c : array_like
+        Complex ``[P]``, per-path amplitude (beat convention).
+    g_t : array_like
+        ``[T, P]``, Tx-leg gain.
+    tau_t : array_like
+        ``[T, P]``, Tx-leg delay [s].
+    g_r : array_like
+        ``[R, P]``, Rx-leg gain.
+    tau_r : array_like
+        ``[R, P]``, Rx-leg delay [s].
+    tau_rate : array_like, optional
+        ``[P]``, delay rate ``d tau / dt`` [s/s].
+
+    Returns
+    -------
+    numpy.ndarray
+        complex64 ``[T, R, num_chirps, num_samples]``.
+
+    Raises
+    ------
+    InputValueError
+        NaN / Inf or wrong shapes (the message names the argument).
     """
     inputs = check_factor_inputs(radar, c, g_t, tau_t, g_r, tau_r, tau_rate)
     return FactorisedSynthesis(radar, inputs).forward()

@@ -106,18 +106,26 @@ COLORADAR_SINGLE_CHIP_WAVEFORM = dict(
 class SuiteCase:
     """One generated capture with what a user is given and the truth.
 
-    ==================  ========================================================
-    ``name``            case name (``"clean"``, ``"if_filter+coupling"``, ...)
-    ``capture``         :class:`Capture`, complex64 ``[F, T, R, chirps,
-                        samples]`` in ADC counts, radar = ``radar_nominal``
-    ``meshes``          ``name -> trimesh.Trimesh`` in the scene frame [m]
-    ``materials``       ``name -> ITU material class`` (``"concrete"``, ...)
-    ``radar_nominal``   the :class:`RadarConfig` with the pose the user believes
-    ``effects``         planted effects: library names, ``"pose_offset"``,
-                        ``"outside:..."``; ``()`` for the clean control
-    ``truth``           every drawn parameter (JSON-serialisable)
-    ``seed``            the seed
-    ==================  ========================================================
+    Parameters
+    ----------
+    name : str
+        case name (``"clean"``, ``"if_filter+coupling"``, ...)
+    capture : Capture
+        :class:`Capture`, complex64 ``[F, T, R, chirps,
+        samples]`` in ADC counts, radar = ``radar_nominal``
+    meshes : dict
+        ``name -> trimesh.Trimesh`` in the scene frame [m]
+    materials : dict
+        ``name -> ITU material class`` (``"concrete"``, ...)
+    radar_nominal : RadarConfig
+        the :class:`RadarConfig` with the pose the user believes
+    effects : tuple
+        planted effects: library names, ``"pose_offset"``,
+        ``"outside:..."``; ``()`` for the clean control
+    truth : dict
+        every drawn parameter (JSON-serialisable)
+    seed : int
+        the seed
     """
 
     name: str

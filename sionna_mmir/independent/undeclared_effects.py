@@ -10,61 +10,74 @@ JSON-ready dict of the drawn parameters; the ``apply_*`` / ``*_paths``
 functions turn them into paths or act on the ADC.  Strengths (why they are
 realistic for a TI MMWCAS cascade / AWR single chip):
 
-=====================  =====================================================
-``channel_gain``       per chip N(0, 1 dB) and U(-pi, pi); per element
-                       N(0, 1 dB) Tx / N(0, 1.5 dB) Rx and N(0, 25 deg); a
-                       non-separable N(0, 0.2 dB), N(0, 2 deg) per channel.
-                       ColoRadar's cascade calibration peaks spread +-1.5 dB
-                       over Tx and +-2.5 dB over Rx with arbitrary phases.
-``delay_offset``       per chip U(-50, 50) ps (Tx and Rx), per element
-                       N(0, 15 ps).  ColoRadar's calibration bins differ by
-                       ~0.2 bin between chips (~80 ps at 79 MHz/us).
-``frequency_offset``   per Rx chip +-U(2, 8) kHz (0.06-0.26 of a 31 kHz
-                       cascade bin), the size of the same per-chip bin steps.
-``chirp_nonlinearity`` ramp error ``b2 (u^2 - 1/3) + b3 u^3`` with
-                       ``|b2|, |b3|`` U(0.2, 0.6) MHz: 0.1-1 MHz VCO ramp
-                       errors, 0.05-0.25 rad of beat phase at 8 m.
-``phase_noise``        L(1 MHz) U(-90, -85) dBc/Hz, flat inside a 0.3-0.8
-                       MHz PLL loop, -20 dB/decade outside, floor -135 dBc/Hz,
-                       offsets up to f_s / 2 (TI quotes -93 to -85 dBc/Hz at
-                       1 MHz for 76-81 GHz); one LO for all chips, a
-                       continuous process over the frame, applied exactly as
-                       ``Phi(t) - Phi(t - tau)`` to the strong paths (corners,
-                       walls, planted scatterers, coupling; the clutter's
-                       skirt is > 50 dB below it).
-``coupling``           a direct antenna path ``(d0 + |tx - rx|) / c``,
-                       ``d0`` U(0.10, 0.25) m, and a radome bounce at
-                       ``2 U(0.15, 0.3) m / c`` (equivalent ranges 0.05-0.3
-                       m); same-chip level +3..+12 dB over the strongest
-                       corner (the leakage is the largest peak of a TI range
-                       profile), other chips 10-20 dB lower, separable factors
-                       times (1 + 0.25 CN(0, 1)) per channel, the second path
-                       3-9 dB below the first.
-``if_filter``          TI's HPF1 {175, 235, 350} kHz, optionally HPF2 {350,
-                       700} kHz (1st or 2nd order), per-Rx corner tolerance
-                       N(0, 3 %); simulated with ``lfilter`` from the ramp
-                       start (HPF reset at ramp start, "fast init").
-``iq_imbalance``       per Rx gain +-U(0.5, 1) dB and phase +-U(3, 8) deg.
-``dc_offset``          per Rx U(2, 8) x the noise std, random phase.
-``noise_floor``        per Rx extra white U(-6, 0) dB of the thermal floor
-                       plus flicker ``(f_knee / f)`` with ``f_knee`` U(100,
-                       400) kHz (CMOS baseband), continuous over the frame.
-``adc_clipping``       I and Q clipped at the level exceeded by U(1, 5) % of
-                       the I/Q values.
-``ego_motion``         radar moving U(0.5, 2) m/s along its boresight.
-``moving_scatterer``   a person (0 dBsm) at 3-6 m walking 0.5-1.5 m/s.
-``missing_scatterer``  an unmodelled 0-7 dBsm post at 2.5-7 m.
-``multipath_ghost``    a trihedral seen via the floor (image point across
-                       ``z = 0``): the double bounce with ``Gamma^2`` (TE
-                       Fresnel of concrete at the grazing angle times the
-                       roughness loss) and the aspect toward the radar's
-                       image, the two mixed paths with ``Gamma`` and the
-                       trihedral's bistatic loss.  The floor, not a side wall:
-                       a corner aimed at the radar sees the radar's image in
-                       a side wall 50-90 deg off its axis (no return), in the
-                       floor 15-30 deg off (-6 to -15 dB), so this is the
-                       ghost real corner-reflector captures show.
-=====================  =====================================================
+``channel_gain``
+    per chip N(0, 1 dB) and U(-pi, pi); per element
+    N(0, 1 dB) Tx / N(0, 1.5 dB) Rx and N(0, 25 deg); a
+    non-separable N(0, 0.2 dB), N(0, 2 deg) per channel.
+    ColoRadar's cascade calibration peaks spread +-1.5 dB
+    over Tx and +-2.5 dB over Rx with arbitrary phases.
+``delay_offset``
+    per chip U(-50, 50) ps (Tx and Rx), per element
+    N(0, 15 ps).  ColoRadar's calibration bins differ by
+    ~0.2 bin between chips (~80 ps at 79 MHz/us).
+``frequency_offset``
+    per Rx chip +-U(2, 8) kHz (0.06-0.26 of a 31 kHz
+    cascade bin), the size of the same per-chip bin steps.
+``chirp_nonlinearity``
+    ramp error ``b2 (u^2 - 1/3) + b3 u^3`` with
+    ``|b2|, |b3|`` U(0.2, 0.6) MHz: 0.1-1 MHz VCO ramp
+    errors, 0.05-0.25 rad of beat phase at 8 m.
+``phase_noise``
+    L(1 MHz) U(-90, -85) dBc/Hz, flat inside a 0.3-0.8
+    MHz PLL loop, -20 dB/decade outside, floor -135 dBc/Hz,
+    offsets up to f_s / 2 (TI quotes -93 to -85 dBc/Hz at
+    1 MHz for 76-81 GHz); one LO for all chips, a
+    continuous process over the frame, applied exactly as
+    ``Phi(t) - Phi(t - tau)`` to the strong paths (corners,
+    walls, planted scatterers, coupling; the clutter's
+    skirt is > 50 dB below it).
+``coupling``
+    a direct antenna path ``(d0 + |tx - rx|) / c``,
+    ``d0`` U(0.10, 0.25) m, and a radome bounce at
+    ``2 U(0.15, 0.3) m / c`` (equivalent ranges 0.05-0.3
+    m); same-chip level +3..+12 dB over the strongest
+    corner (the leakage is the largest peak of a TI range
+    profile), other chips 10-20 dB lower, separable factors
+    times (1 + 0.25 CN(0, 1)) per channel, the second path
+    3-9 dB below the first.
+``if_filter``
+    TI's HPF1 {175, 235, 350} kHz, optionally HPF2 {350,
+    700} kHz (1st or 2nd order), per-Rx corner tolerance
+    N(0, 3 %); simulated with ``lfilter`` from the ramp
+    start (HPF reset at ramp start, "fast init").
+``iq_imbalance``
+    per Rx gain +-U(0.5, 1) dB and phase +-U(3, 8) deg.
+``dc_offset``
+    per Rx U(2, 8) x the noise std, random phase.
+``noise_floor``
+    per Rx extra white U(-6, 0) dB of the thermal floor
+    plus flicker ``(f_knee / f)`` with ``f_knee`` U(100,
+    400) kHz (CMOS baseband), continuous over the frame.
+``adc_clipping``
+    I and Q clipped at the level exceeded by U(1, 5) % of
+    the I/Q values.
+``ego_motion``
+    radar moving U(0.5, 2) m/s along its boresight.
+``moving_scatterer``
+    a person (0 dBsm) at 3-6 m walking 0.5-1.5 m/s.
+``missing_scatterer``
+    an unmodelled 0-7 dBsm post at 2.5-7 m.
+``multipath_ghost``
+    a trihedral seen via the floor (image point across
+    ``z = 0``): the double bounce with ``Gamma^2`` (TE
+    Fresnel of concrete at the grazing angle times the
+    roughness loss) and the aspect toward the radar's
+    image, the two mixed paths with ``Gamma`` and the
+    trihedral's bistatic loss.  The floor, not a side wall:
+    a corner aimed at the radar sees the radar's image in
+    a side wall 50-90 deg off its axis (no return), in the
+    floor 15-30 deg off (-6 to -15 dB), so this is the
+    ghost real corner-reflector captures show.
 
 Outside the library: ``outside:interference`` (another FMCW radar) and
 ``outside:tx_droop`` (power-amplifier droop over the frame); see

@@ -1,14 +1,22 @@
 """Differentiable radar paths: ray generation, the Monte Carlo path solver, SMS.
 
-``options``    :class:`SolverOptions`: the solver's settings and named presets
-``solver``     :class:`RadarPathSolver`, a subclass of Sionna RT's ``PathSolver``
-``sampling``   candidate-ray strategies (random cone, facet quadrature)
-``transport``  the transport stages (surface, connection, coherent, scattered,
-               continuation, diffraction, motion)
-``assemble``   per-element legs and factorised paths
-``radar_paths``  :class:`RadarPaths`, per (tx, rx, path) amplitudes and delays
-``render``     :func:`render`, :func:`render_capture`
-``sms``        specular manifold sampling (Newton walk + IFT gradients)
+``options``
+    :class:`SolverOptions`: the solver's settings and named presets
+``solver``
+    :class:`RadarPathSolver`, a subclass of Sionna RT's ``PathSolver``
+``sampling``
+    candidate-ray strategies (random cone, facet quadrature)
+``transport``
+    the transport stages (surface, connection, coherent, scattered,
+    continuation, diffraction, motion)
+``assemble``
+    per-element legs and factorised paths
+``radar_paths``
+    :class:`RadarPaths`, per (tx, rx, path) amplitudes and delays
+``render``
+    :func:`render`, :func:`render_capture`
+``sms``
+    specular manifold sampling (Newton walk + IFT gradients)
 
 Importing a submodule initialises the Mitsuba backend.
 """

@@ -6,17 +6,20 @@ triangle, which barycentric coordinates -- is kept.  :class:`SceneGeometry`
 then rebuilds every quantity the estimator needs *inside* the AD graph from
 the scene's differentiable per-vertex tensors:
 
-===============  ===========================================================
-position         ``x = (1-u-v) p0 + u p1 + v p2`` (Mitsuba's ``prim_uv``)
-shading normal   ``normalize((1-u-v) n0 + u n1 + v n2)``
-geometric normal ``normalize((p1-p0) x (p2-p0))``
-area ratio       ``A(theta) / detach(A)``: the change of the area element of
-                 the barycentric parameterisation (value 1); multiplying a
-                 sample's weight by it makes the area-measure estimator exact
-                 under vertex motion (Jacobian of ``x(u, v; theta)``)
-material         the six per-vertex parameters interpolated barycentrically
-                 (``[eps', eps'', sigma_h, l_c, tau, d]``)
-===============  ===========================================================
+position
+    ``x = (1-u-v) p0 + u p1 + v p2`` (Mitsuba's ``prim_uv``)
+shading normal
+    ``normalize((1-u-v) n0 + u n1 + v n2)``
+geometric normal
+    ``normalize((p1-p0) x (p2-p0))``
+area ratio
+    ``A(theta) / detach(A)``: the change of the area element of
+    the barycentric parameterisation (value 1); multiplying a
+    sample's weight by it makes the area-measure estimator exact
+    under vertex motion (Jacobian of ``x(u, v; theta)``)
+material
+    the six per-vertex parameters interpolated barycentrically
+    (``[eps', eps'', sigma_h, l_c, tau, d]``)
 
 A surface point is thus *attached* to the material (fixed barycentrics) when
 vertices move: gradients of positions, normals and materials reach the three
@@ -41,17 +44,26 @@ import mitsuba as mi  # noqa: E402
 class Interaction:
     """One differentiable surface interaction per lane (all ``mi.*`` arrays).
 
-    ==========  =====================================================
-    valid       ``mi.Bool``: a triangle was hit
-    obj         ``mi.UInt32``: object index (order of ``SceneGeometry.names``)
-    face        ``mi.UInt32``: global face index
-    p           ``mi.Point3f`` hit position [m] (AD)
-    n           ``mi.Vector3f`` unit shading normal (AD)
-    ng          ``mi.Vector3f`` unit geometric normal (AD)
-    area_ratio  ``mi.Float`` ``A / detach(A)`` of the hit triangle (AD)
-    mat         list of 6 ``mi.Float``: ``eps', eps'', sigma_h, l_c, tau, d``
-    tri         the hit triangle's vertices ``(P0, P1, P2)`` (AD)
-    ==========  =====================================================
+    Parameters
+    ----------
+    valid : mi.Bool
+        a triangle was hit
+    obj : mi.UInt32
+        object index (order of ``SceneGeometry.names``)
+    face : mi.UInt32
+        global face index
+    p : mi.Point3f
+        hit position [m] (AD)
+    n : mi.Vector3f
+        unit shading normal (AD)
+    ng : mi.Vector3f
+        unit geometric normal (AD)
+    area_ratio : mi.Float
+        ``A / detach(A)`` of the hit triangle (AD)
+    mat : list of mi.Float
+        the six materials ``eps', eps'', sigma_h, l_c, tau, d``
+    tri : tuple, optional
+        the hit triangle's vertices ``(P0, P1, P2)`` (AD)
     """
 
     valid: object
@@ -103,13 +115,14 @@ class Tape:
 class SceneGeometry:
     """Global (all objects concatenated) differentiable mesh arrays of a scene.
 
-    ==========  ===========================================================
-    scene       :class:`~sionna_mmir.scene.RadarScene`
-    ==========  ===========================================================
-
     Build a new instance after changing the scene's tensors (it concatenates
     them inside the AD graph, so gradients flow back to each object's
     ``vertex_positions`` / ``vertex_normals`` / ``vertex_materials``).
+
+    Parameters
+    ----------
+    scene : RadarScene
+        The scene (:class:`~sionna_mmir.scene.RadarScene`).
     """
 
     def __init__(self, scene):

@@ -28,10 +28,12 @@ def _component(t, i):
 class Pose:
     """Rotation rows and origin of the radar in the scene (Dr.Jit, AD).
 
-    ======  ================================================
-    rows    three ``mi.Vector3f``: rows of ``R`` (radar -> scene)
-    origin  ``mi.Point3f`` radar origin in the scene [m]
-    ======  ================================================
+    Parameters
+    ----------
+    rows : tuple of mi.Vector3f
+        the three rows of ``R`` (radar -> scene)
+    origin : mi.Point3f
+        radar origin in the scene [m]
     """
 
     rows: tuple

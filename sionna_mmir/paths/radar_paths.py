@@ -36,15 +36,22 @@ _FLAT = ("a_re", "a_im", "tau", "tau_rate")
 class PathFactors:
     """Factorised paths (Dr.Jit ``mi.Float`` arrays, inside the AD graph).
 
-    ==========  ============================================================
-    c_re, c_im  [P] per-path amplitude, beat convention (``a = c g_t g_r``)
-    g_t         [T*P] Tx-leg gain (``t`` slowest, ``p`` fastest)
-    tau_t       [T*P] Tx-leg delay [s]
-    g_r         [R*P] Rx-leg gain
-    tau_r       [R*P] Rx-leg delay [s]
-    rate        [P] delay rate ``d tau / dt`` [s/s], or ``None`` (static)
-    shape       ``(T, R, P)``
-    ==========  ============================================================
+    Parameters
+    ----------
+    c_re, c_im : mi.Float
+        [P] per-path amplitude, beat convention (``a = c g_t g_r``)
+    g_t : mi.Float
+        [T*P] Tx-leg gain (``t`` slowest, ``p`` fastest)
+    tau_t : mi.Float
+        [T*P] Tx-leg delay [s]
+    g_r : mi.Float
+        [R*P] Rx-leg gain
+    tau_r : mi.Float
+        [R*P] Rx-leg delay [s]
+    rate : mi.Float or None
+        [P] delay rate ``d tau / dt`` [s/s], or ``None`` (static)
+    shape : tuple
+        ``(T, R, P)``
     """
 
     c_re: object
@@ -201,22 +208,29 @@ def _sum_rows(x, n: int, P: int):
 class RadarPaths:
     """Paths of one radar frame (Dr.Jit arrays, inside the AD graph).
 
-    ==============  =========================================================
-    a_re, a_im      ``mi.Float`` [T*R*P], amplitude (``t`` slowest, ``p``
-                    fastest), dimensionless voltage ratio
-    tau             ``mi.Float`` [T*R*P], delay [s]
-    tau_rate        ``mi.Float`` [T*R*P] ``d tau / dt`` [s/s] or ``None``
-    shape           ``(T, R, P)``
-    depth           ``np.ndarray`` [P] number of interactions of each path
-    num_candidates  rays launched (the Monte Carlo ``N`` of eq. 3)
-    factors         :class:`PathFactors` or ``None``
-    ==============  =========================================================
-
     Built either from the expanded arrays (``RadarPaths(a_re, a_im, tau,
     tau_rate, shape, depth, num_candidates)``) or from factors
     (:meth:`from_factors`); with factors the expanded fields are gathered on
     first access and cached.  Assigning an expanded field turns the object
     into an expanded one (the factors are dropped).
+
+    Parameters
+    ----------
+    a_re, a_im : mi.Float, optional
+        [T*R*P], amplitude (``t`` slowest, ``p``
+        fastest), dimensionless voltage ratio
+    tau : mi.Float, optional
+        [T*R*P], delay [s]
+    tau_rate : mi.Float, optional
+        [T*R*P] ``d tau / dt`` [s/s] or ``None``
+    shape : tuple, optional
+        ``(T, R, P)``
+    depth : numpy.ndarray, optional
+        [P] number of interactions of each path
+    num_candidates : int, optional
+        rays launched (the Monte Carlo ``N`` of eq. 3)
+    factors : PathFactors, optional
+        the factorised paths, or ``None``
     """
 
     def __init__(self, a_re=None, a_im=None, tau=None, tau_rate=None, shape=(0, 0, 0),

@@ -3,16 +3,16 @@
 A strategy produces the first rays from the array's phase centre and says how
 the estimator weights them:
 
-=====================  ======================================================
-:class:`RandomCone`    ``N`` cosine-weighted Monte Carlo directions in a cone
-                       about boresight; ``pdf`` in [1/sr]; estimates divide by
-                       ``N``; coherent chains continue at random (specular
-                       with probability ``eta``) under Russian roulette
-:class:`FacetQuadrature`  one ray to every (sub-)facet centroid in the cone,
-                       weighted by the facet's solid angle (a deterministic
-                       quadrature; ``pdf = 1 / Omega_s``); coherent chains
-                       always continue and are never rouletted
-=====================  ======================================================
+:class:`RandomCone`
+    ``N`` cosine-weighted Monte Carlo directions in a cone
+    about boresight; ``pdf`` in [1/sr]; estimates divide by
+    ``N``; coherent chains continue at random (specular
+    with probability ``eta``) under Russian roulette
+:class:`FacetQuadrature`
+    one ray to every (sub-)facet centroid in the cone,
+    weighted by the facet's solid angle (a deterministic
+    quadrature; ``pdf = 1 / Omega_s``); coherent chains
+    always continue and are never rouletted
 
 Rays are generated outside AD (the directions are samples, not parameters).
 """

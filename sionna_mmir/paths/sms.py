@@ -128,20 +128,29 @@ SpecularSolution = namedtuple(
      "iterations", "error"])
 SpecularSolution.__doc__ = """Result of :func:`solve_specular` (all detached, size N).
 
-==========  ============  ====================================================
-valid       mi.Bool       converged, a and b in front, x visible from both
-shape       mi.ShapePtr   the mesh holding x (null where no triangle)
-object_id   mi.UInt32     index into ``list(scene.mesh_objects)``
-                          (:data:`NO_OBJECT` where no triangle)
-prim_index  mi.UInt32     triangle index within that mesh
-bary        mi.Point2f    barycentrics (b1, b2): x = (1-b1-b2) p0 + b1 p1 + b2 p2
-position    mi.Point3f    the reflection point x [m]
-normal      mi.Vector3f   unit interpolated shading normal at x
-iterations  mi.UInt32     Newton iterations (accepted + rejected) used
-error       mi.Float      final |C| (sine of the angle between h and n)
-==========  ============  ====================================================
-
 Fields other than ``valid`` are the walk's last state on invalid lanes.
+
+Attributes
+----------
+valid : mi.Bool
+    Converged, a and b in front, x visible from both.
+shape : mi.ShapePtr
+    The mesh holding x (null where no triangle).
+object_id : mi.UInt32
+    Index into ``list(scene.mesh_objects)`` (:data:`NO_OBJECT` where no
+    triangle).
+prim_index : mi.UInt32
+    Triangle index within that mesh.
+bary : mi.Point2f
+    Barycentrics ``(b1, b2)``: ``x = (1-b1-b2) p0 + b1 p1 + b2 p2``.
+position : mi.Point3f
+    The reflection point x [m].
+normal : mi.Vector3f
+    Unit interpolated shading normal at x.
+iterations : mi.UInt32
+    Newton iterations (accepted + rejected) used.
+error : mi.Float
+    Final ``|C|`` (sine of the angle between h and n).
 """
 
 
@@ -355,19 +364,21 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
                    step_limit=None) -> SpecularSolution:
     """Find reflection points ``x`` on the scene's meshes for ``a -> x -> b``.
 
-    ==========  ===========================================================
-    scene       :class:`~sionna_mmir.scene.RadarScene` (tensors synced)
-    a, b        path endpoints, ``mi.Point3f`` or array (N, 3) / (3,) [m]
-    seed        start points on / near the surface, same forms [m]
-    max_iter    Newton iterations at most (accepted + rejected steps)
-    tol         convergence threshold on ``|C|`` (~ angle between h and n, rad)
-    step_limit  largest step [m] (float, or ``mi.Float`` per lane); default
-                a quarter of the shorter distance from x to a or b
-    returns     :class:`SpecularSolution` of size N (sizes 1 broadcast)
-    ==========  ===========================================================
+    Runs without AD (see the module docstring).  Returns a
+    :class:`SpecularSolution` of size N (sizes 1 broadcast); NaN / Inf or
+    inconsistently sized inputs raise ``InputValueError``.
 
-    Runs without AD (see the module docstring for the algorithm).  Raises
-    ``InputValueError`` for NaN / Inf or inconsistently sized inputs.
+    Parameters
+    ----------
+    scene : RadarScene
+        The scene (tensors synced).
+    a, b, seed : mi.Point3f or array_like
+        Path endpoints; start points on / near the surface; (N, 3) / (3,) [m].
+    max_iter, tol : int, float, optional
+        Newton iterations at most (accepted + rejected); convergence threshold
+        on ``|C|`` (~ angle between h and n) [rad].
+    step_limit : float or mi.Float, optional
+        Largest step [m]; default a quarter of the shorter distance from x to a or b.
     """
     tables = _Tables(scene, detach=True)
     if int(max_iter) < 0:
@@ -483,20 +494,27 @@ def _select_tree(mask, new, old):
 def specular_point_ad(scene, solution: SpecularSolution, a, b):
     """Reflection point and shading normal, differentiable by the IFT.
 
-    ========  ================================================================
-    scene     the :class:`~sionna_mmir.scene.RadarScene` solved on; its
-              ``vertex_positions`` / ``vertex_normals`` tensors may have
-              gradients enabled
-    solution  :class:`SpecularSolution` from :func:`solve_specular`
-    a, b      the endpoints used there (``mi.Point3f``, may carry gradients)
-    returns   ``(x, n)``: ``mi.Point3f`` [m] and unit ``mi.Vector3f``;
-              zero on invalid lanes
-    ========  ================================================================
-
     One Newton step from the detached converged barycentrics with the
     detached Jacobian, ``(u, v) = (u0, v0) - J^-1 C(u0, v0; theta)``, then
     ``x = x(u, v; theta)``: value = the solution, derivative = the implicit
     function theorem's ``-J^-1 dC/dtheta`` (see the module docstring).
+
+    Parameters
+    ----------
+    scene : RadarScene
+        The scene solved on; its ``vertex_positions`` / ``vertex_normals``
+        tensors may have gradients enabled.
+    solution : SpecularSolution
+        From :func:`solve_specular`.
+    a, b : mi.Point3f
+        The endpoints used there (may carry gradients).
+
+    Returns
+    -------
+    x : mi.Point3f
+        Reflection point [m]; zero on invalid lanes.
+    n : mi.Vector3f
+        Unit shading normal; zero on invalid lanes.
     """
     tables = _Tables(scene, detach=False)
     a = _as_point3f(a, "a")

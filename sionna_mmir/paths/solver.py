@@ -31,8 +31,6 @@ does not converge for coherent surfaces).
 Motion: objects with a velocity and a moving radar give each path a delay
 rate ``d tau / dt`` for Doppler across chirps and TDM slots (not in the
 paper; :mod:`.transport.motion`).
-
-:mod:`.solver_basic` is a plain reference twin of this estimator for tests.
 """
 from __future__ import annotations
 

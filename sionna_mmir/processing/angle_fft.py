@@ -48,16 +48,24 @@ def angles_from_spatial_frequency(v, radar: RadarConfig) -> np.ndarray:
 def angle_fft(x, axis: int, window="hann", n_fft: int = 128, support=None) -> np.ndarray:
     """``A(k) = sum_m w_m x_m exp(+j 2 pi m k / n_fft)`` along ``axis``, fftshifted.
 
-    ==============  ==========================================================
-    ``x``           complex array, grid cells ``m = 0 .. n-1`` on ``axis``
-    ``axis``        the axis to transform
-    ``window``      window name (unit coherent gain) or ``None``
-    ``n_fft``       FFT length (>= n), zero padded
-    ``support``     ``(start, stop)`` cells the window spans (default all)
-    ==============  ==========================================================
+    Parameters
+    ----------
+    x : array_like
+        Complex array, grid cells ``m = 0 .. n-1`` on ``axis``.
+    axis : int
+        The axis to transform.
+    window : str or None, optional
+        Window name (unit coherent gain) or ``None``.
+    n_fft : int, optional
+        FFT length (>= n), zero padded.
+    support : tuple of int, optional
+        ``(start, stop)`` cells the window spans (default all).
 
-    Returns complex ``x.shape`` with ``axis`` of length ``n_fft``; bin ``i``
-    has spatial frequency :func:`spatial_frequencies` ``(n_fft)[i]``.
+    Returns
+    -------
+    numpy.ndarray
+        Complex ``x.shape`` with ``axis`` of length ``n_fft``; bin ``i`` has
+        spatial frequency :func:`spatial_frequencies` ``(n_fft)[i]``.
     """
     x = np.asarray(x)
     if not np.iscomplexobj(x):

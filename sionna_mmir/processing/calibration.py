@@ -78,22 +78,32 @@ def estimate_phase_frequency_calibration(adc, radar: RadarConfig, interp_factor:
                                          max_range: float | None = None, refine: bool = False):
     """Per-channel corner peak bin and complex peak value (TI procedure).
 
-    ==================  ======================================================
-    ``adc``             complex ``[tx, rx, chirp, sample]`` of a corner capture
-    ``radar``           its :class:`~sionna_mmir.radar.RadarConfig`
-    ``interp_factor``   zero-padding factor ``I`` of the range FFT (5)
-    ``window``          range window name, or an array ``[num_samples]``
-    ``min_range``,      range gate [m] of the peak search (leakage lives
-    ``max_range``       below ~0.3 m); ``max_range`` default: all
-    ``refine``          ``False``: integer fine bins (as TI's ``RangeMat``,
-                        but 0-based); ``True``: parabolic refinement of the
-                        peak on the magnitude and the peak value evaluated
-                        at the refined frequency (a DTFT)
-    ==================  ======================================================
+    Parameters
+    ----------
+    adc : array_like
+        Complex ``[tx, rx, chirp, sample]`` of a corner capture.
+    radar : RadarConfig
+        Its radar.
+    interp_factor : int, optional
+        Zero-padding factor ``I`` of the range FFT (5).
+    window : str or array_like, optional
+        Range window name, or an array ``[num_samples]``.
+    min_range, max_range : float, optional
+        Range gate [m] of the peak search (leakage lives below ~0.3 m);
+        ``max_range`` default: all.
+    refine : bool, optional
+        ``False``: integer fine bins (as TI's ``RangeMat``, but 0-based);
+        ``True``: parabolic refinement of the peak on the magnitude and the
+        peak value evaluated at the refined frequency (a DTFT).
 
-    Returns ``(frequency_bins [tx, rx] float64, peaks [tx, rx] complex128)``,
-    bins in units of ``1 / (I N)`` cycles per sample (0-based).  Only
-    differences of bins are used by :func:`phase_frequency_correct`.
+    Returns
+    -------
+    frequency_bins : numpy.ndarray
+        float64 ``[tx, rx]``, in units of ``1 / (I N)`` cycles per sample
+        (0-based).  Only differences of bins are used by
+        :func:`phase_frequency_correct`.
+    peaks : numpy.ndarray
+        complex128 ``[tx, rx]`` peak values.
     """
     where = "estimate_phase_frequency_calibration"
     x = _check_adc_tail(adc, radar, where)
@@ -141,28 +151,39 @@ def phase_frequency_correct(adc, radar: RadarConfig, frequency_bins, phase, cal_
                             reference=(0, 0), cal_first_sample_frequency: float | None = None):
     """Apply phase and frequency calibration to raw ADC.
 
-    ==============================  ==========================================
-    ``adc``                         complex ``[..., tx, rx, chirp, sample]``
-    ``radar``                       waveform of ``adc``
-    ``frequency_bins``              ``[tx, rx]`` corner peak bins of the
-                                    calibration (``interp_factor`` x
-                                    interpolated FFT; 0- or 1-based alike)
-    ``phase``                       ``[tx, rx]`` complex peak values ``p_i``
-    ``cal_slope``                   calibration chirp slope ``S_cal`` [Hz/s]
-    ``cal_sample_rate``             calibration sample rate [Hz]
-    ``cal_num_samples``             calibration samples per chirp ``N_cal``
-    ``interp_factor``               zero-padding factor ``I`` (5)
-    ``reference``                   ``(tx, rx)`` of the reference channel
-    ``cal_first_sample_frequency``  optional ``f0,cal + S_cal t_adc,cal``
-                                    [Hz]; enables the exact delay model for
-                                    waveforms that differ from the
-                                    calibration's (module docstring)
-    ==============================  ==========================================
-
     Channel ``i`` is multiplied by ``(p_ref / p_i) / |p_ref / p_i|`` and by
     ``exp(-j 2 pi (b_i - b_ref) / (I N_cal) (S / S_cal) (f_s,cal / f_s) n)``
-    (derivation in the module docstring).  Returns complex ``adc.shape``
-    (complex64 for complex64 input).
+    (derivation in the module docstring).
+
+    Parameters
+    ----------
+    adc : array_like
+        Complex ``[..., tx, rx, chirp, sample]``.
+    radar : RadarConfig
+        Waveform of ``adc``.
+    frequency_bins : array_like
+        ``[tx, rx]`` corner peak bins of the calibration (``interp_factor`` x
+        interpolated FFT; 0- or 1-based alike).
+    phase : array_like
+        ``[tx, rx]`` complex peak values ``p_i``.
+    cal_slope : float
+        Calibration chirp slope ``S_cal`` [Hz/s].
+    cal_sample_rate : float
+        Calibration sample rate [Hz].
+    cal_num_samples : int
+        Calibration samples per chirp ``N_cal``.
+    interp_factor : int, optional
+        Zero-padding factor ``I`` (5).
+    reference : tuple, optional
+        ``(tx, rx)`` of the reference channel.
+    cal_first_sample_frequency : float, optional
+        ``f0,cal + S_cal t_adc,cal`` [Hz]; enables the exact delay model for
+        waveforms that differ from the calibration's (module docstring).
+
+    Returns
+    -------
+    numpy.ndarray
+        Complex ``adc.shape`` (complex64 for complex64 input).
     """
     where = "phase_frequency_correct"
     x = _check_adc_tail(adc, radar, where)
@@ -204,14 +225,19 @@ def phase_frequency_correct(adc, radar: RadarConfig, frequency_bins, phase, cal_
 def subtract_coupling(rfft, coupling):
     """Subtract measured Tx->Rx coupling from the first range bins of every chirp.
 
-    ==============  ==========================================================
-    ``rfft``        complex range spectrum ``[..., tx, rx, chirp, n_range]``
-    ``coupling``    complex ``[tx, rx, n_bins]`` (``n_bins <= n_range``), in
-                    the same range-FFT convention (window, length, scale)
-    ==============  ==========================================================
+    Parameters
+    ----------
+    rfft : array_like
+        Complex range spectrum ``[..., tx, rx, chirp, n_range]``.
+    coupling : array_like
+        Complex ``[tx, rx, n_bins]`` (``n_bins <= n_range``), in the same
+        range-FFT convention (window, length, scale).
 
-    Returns a new array: ``rfft[..., :n_bins] - coupling[:, :, None, :]``,
-    other bins unchanged.
+    Returns
+    -------
+    numpy.ndarray
+        A new array: ``rfft[..., :n_bins] - coupling[:, :, None, :]``, other
+        bins unchanged.
     """
     where = "subtract_coupling"
     x = _finite(rfft, "rfft", where)

@@ -38,17 +38,25 @@ def doppler_velocities_m_s(radar: RadarConfig, n_fft: int | None = None) -> np.n
 def doppler_fft(rfft, radar: RadarConfig, window="hann", n_fft: int | None = None):
     """Windowed, fftshifted FFT over the chirp axis (axis -2).
 
-    ==============  ==========================================================
-    ``rfft``        complex ``[..., chirp, range]``, e.g. the range spectrum
-                    ``[tx, rx, chirp, range]`` (any leading axes)
-    ``radar``       :class:`~sionna_mmir.radar.RadarConfig`
-    ``window``      window name (unit coherent gain), ``None`` for none
-    ``n_fft``       FFT length (zero padding), default ``num_chirps``
-    ==============  ==========================================================
+    Parameters
+    ----------
+    rfft : array_like
+        Complex ``[..., chirp, range]``, e.g. the range spectrum ``[tx, rx,
+        chirp, range]`` (any leading axes).
+    radar : RadarConfig
+        The waveform.
+    window : str or None, optional
+        Window name (unit coherent gain), ``None`` for none.
+    n_fft : int, optional
+        FFT length (zero padding), default ``num_chirps``.
 
-    Returns ``(spectrum, velocities_m_s)``: complex ``[..., n_fft, range]``
-    in fftshift order (bin ``n_fft // 2`` is zero Doppler) and float64
-    ``[n_fft]`` [m/s], positive for targets moving away.
+    Returns
+    -------
+    spectrum : numpy.ndarray
+        Complex ``[..., n_fft, range]`` in fftshift order (bin ``n_fft // 2``
+        is zero Doppler).
+    velocities_m_s : numpy.ndarray
+        float64 ``[n_fft]`` [m/s], positive for targets moving away.
     """
     x = np.asarray(rfft)
     if x.ndim < 2 or x.shape[-2] != radar.num_chirps:

@@ -73,24 +73,23 @@ def _ra_settings(kwargs: dict, where: str) -> dict:
 class RALinearMap:
     """The linear part ``z = L x`` of :func:`~.imaging.range_azimuth` and its adjoint.
 
-    ====================  ====================================================
-    ``radar``             :class:`~sionna_mmir.radar.RadarConfig`
-    ``range_window``,     as :func:`~.imaging.range_azimuth` (same defaults:
-    ``azimuth_window``,   ``'hann'``, ``n_range = num_samples``,
-    ``doppler_window``,   ``n_azimuth = 128``, ``doppler = 'mean'``,
-    ``n_range``,          ``tdm_compensation = True``)
-    ``n_azimuth``,
-    ``doppler``,
-    ``tdm_compensation``,
-    ``virtual_array``
-    ====================  ====================================================
-
     ``apply(x)``: complex ADC ``[tx, rx, chirp, sample]`` -> ``z`` complex
     ``[n_azimuth, n_range]`` (``'mean'``) or ``[n_azimuth, num_chirps,
     n_range]`` (``'noncoherent'``), fftshifted azimuth bins; same dtype rules
     as the NumPy stages (complex64 in -> complex64 out).
     ``adjoint(g)``: ``L^H g``, complex128 ``[tx, rx, chirp, sample]``.
     ``magnitude(z)``: the RA map ``[n_range, n_azimuth]`` from ``z``.
+
+    Parameters
+    ----------
+    radar : RadarConfig
+        Waveform and layout.
+    **kwargs
+        ``range_window``, ``azimuth_window``, ``doppler_window``,
+        ``n_range``, ``n_azimuth``, ``doppler``, ``tdm_compensation``,
+        ``virtual_array``: as :func:`~.imaging.range_azimuth` (same defaults:
+        ``'hann'``, ``n_range = num_samples``, ``n_azimuth = 128``,
+        ``doppler = 'mean'``, ``tdm_compensation = True``).
     """
 
     def __init__(self, radar: RadarConfig, **kwargs):
@@ -276,30 +275,38 @@ def _split_adc(adc, radar, where):
 def range_azimuth_drjit(adc, radar: RadarConfig, **kwargs):
     """Differentiable range-azimuth magnitude map (Dr.Jit custom op).
 
-    ====================  ====================================================
-    ``adc``               :class:`~sionna_mmir.fmcw.synthesize.DrAdc` or a
-                          ``(real, imag)`` pair of ``mi.TensorXf``, each
-                          ``[tx, rx, chirp, sample]`` (= ``radar.adc_shape``),
-                          ADC units (as synthesised / captured)
-    ``radar``             :class:`~sionna_mmir.radar.RadarConfig`
-    ``**kwargs``          options of :func:`~.imaging.range_azimuth`
-                          (``range_window``, ``azimuth_window``,
-                          ``doppler_window``, ``n_range``, ``n_azimuth``,
-                          ``doppler`` = ``'mean'`` or ``'noncoherent'``,
-                          ``tdm_compensation``, ``virtual_array``), same
-                          defaults
-    ====================  ====================================================
+    The magnitudes of ``range_azimuth(adc, radar, **kwargs)[0]`` (computed by
+    the same NumPy stages on the float32 ADC), with analytic reverse- and
+    forward-mode derivatives w.r.t. ``adc.real`` and ``adc.imag`` (module
+    docstring).
 
-    Returns ``mi.TensorXf`` ``[n_range, n_azimuth]``: the magnitudes of
-    ``range_azimuth(adc, radar, **kwargs)[0]`` (computed by the same NumPy
-    stages on the float32 ADC), with analytic reverse- and forward-mode
-    derivatives w.r.t. ``adc.real`` and ``adc.imag`` (module docstring).
-    Axes: rows = range bins ``ranges_m``, columns = azimuth bins
-    ``azimuths_rad`` of ``range_azimuth`` (increasing, positive = left).
+    Parameters
+    ----------
+    adc : DrAdc or tuple of mi.TensorXf
+        :class:`~sionna_mmir.fmcw.synthesize.DrAdc` or a ``(real, imag)`` pair
+        of ``mi.TensorXf``, each ``[tx, rx, chirp, sample]`` (=
+        ``radar.adc_shape``), ADC units (as synthesised / captured).
+    radar : RadarConfig
+        Waveform and layout.
+    **kwargs
+        Options of :func:`~.imaging.range_azimuth` (``range_window``,
+        ``azimuth_window``, ``doppler_window``, ``n_range``, ``n_azimuth``,
+        ``doppler`` = ``'mean'`` or ``'noncoherent'``, ``tdm_compensation``,
+        ``virtual_array``), same defaults.
 
-    Wrong ADC shape, NaN / Inf samples or non-tensor input raise
-    :class:`~sionna_mmir.errors.InputValueError`; an unknown option or
-    ``doppler`` mode raises :class:`~sionna_mmir.errors.ConfigError`.
+    Returns
+    -------
+    mi.TensorXf
+        ``[n_range, n_azimuth]``: rows = range bins ``ranges_m``, columns =
+        azimuth bins ``azimuths_rad`` of ``range_azimuth`` (increasing,
+        positive = left).
+
+    Raises
+    ------
+    InputValueError
+        Wrong ADC shape, NaN / Inf samples or non-tensor input.
+    ConfigError
+        An unknown option or ``doppler`` mode.
     """
     global _OP
     dr, mi = _drjit()
@@ -333,16 +340,7 @@ def _target_map(ra_target, shape, where):
 def ra_loss_drjit(ra_render, ra_target):
     """Paper eq. 7 on Dr.Jit: ``mean((minmax(ra_render) - minmax(ra_target))^2)``.
 
-    ==============  ==========================================================
-    ``ra_render``   ``mi.TensorXf`` RA magnitudes (e.g. ``[n_range,
-                    n_azimuth]`` from :func:`range_azimuth_drjit`), any
-                    units; differentiable
-    ``ra_target``   real map of the same shape: NumPy array or ``mi.TensorXf``
-                    (detached: no gradient flows into it)
-    ==============  ==========================================================
-
-    Returns a scalar ``mi.Float`` (one entry, dimensionless), equal (to
-    float32 precision) to :func:`sionna_mmir.metrics.ra.ra_loss`:
+    Equal (to float32 precision) to :func:`sionna_mmir.metrics.ra.ra_loss`:
     ``minmax(x) = (x - min x) / (max x - min x)``, no epsilon; a constant map
     normalises to all zeros (and then passes no gradient).
 
@@ -355,8 +353,23 @@ def ra_loss_drjit(ra_render, ra_target):
     major) takes the whole normalisation derivative: a one-sided derivative,
     exact for perturbations that keep that bin extreme.
 
-    NaN / Inf, complex or mismatched shapes raise
-    :class:`~sionna_mmir.errors.InputValueError`.
+    Parameters
+    ----------
+    ra_render : mi.TensorXf
+        RA magnitudes (e.g. ``[n_range, n_azimuth]`` from
+        :func:`range_azimuth_drjit`), any units; differentiable.
+    ra_target : numpy.ndarray or mi.TensorXf
+        Real map of the same shape (detached: no gradient flows into it).
+
+    Returns
+    -------
+    mi.Float
+        The scalar loss (one entry, dimensionless).
+
+    Raises
+    ------
+    InputValueError
+        NaN / Inf, complex or mismatched shapes.
     """
     dr, mi = _drjit()
     where = "ra_loss_drjit"
@@ -386,16 +399,23 @@ def ra_loss_drjit(ra_render, ra_target):
 def ra_loss_from_adc(adc, radar: RadarConfig, ra_target, **kwargs):
     """``ra_loss_drjit(range_azimuth_drjit(adc, radar, **kwargs), ra_target)``.
 
-    ==============  ==========================================================
-    ``adc``         :class:`~sionna_mmir.fmcw.synthesize.DrAdc` or ``(re, im)``
-                    ``mi.TensorXf`` ``[tx, rx, chirp, sample]``
-    ``radar``       :class:`~sionna_mmir.radar.RadarConfig`
-    ``ra_target``   ``[n_range, n_azimuth]`` target map (NumPy or detached
-                    ``mi.TensorXf``), e.g. ``range_azimuth`` of a capture
-    ``**kwargs``    :func:`~.imaging.range_azimuth` options
-    ==============  ==========================================================
+    Parameters
+    ----------
+    adc : DrAdc or tuple of mi.TensorXf
+        :class:`~sionna_mmir.fmcw.synthesize.DrAdc` or ``(re, im)``
+        ``mi.TensorXf`` ``[tx, rx, chirp, sample]``.
+    radar : RadarConfig
+        Waveform and layout.
+    ra_target : numpy.ndarray or mi.TensorXf
+        ``[n_range, n_azimuth]`` target map (NumPy or detached
+        ``mi.TensorXf``), e.g. ``range_azimuth`` of a capture.
+    **kwargs
+        :func:`~.imaging.range_azimuth` options.
 
-    Returns the scalar loss ``mi.Float`` (paper eq. 7), differentiable w.r.t.
-    the ADC and whatever produced it.
+    Returns
+    -------
+    mi.Float
+        The scalar loss (paper eq. 7), differentiable w.r.t. the ADC and
+        whatever produced it.
     """
     return ra_loss_drjit(range_azimuth_drjit(adc, radar, **kwargs), ra_target)

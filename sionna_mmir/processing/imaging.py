@@ -67,27 +67,42 @@ def range_azimuth(adc, radar: RadarConfig, *, range_window="hann", azimuth_windo
                   virtual_array: VirtualArray | None = None):
     """Range-azimuth magnitude map of one frame.
 
-    ====================  ====================================================
-    ``adc``               complex ``[tx, rx, chirp, sample]`` (= ``radar.adc_shape``)
-    ``radar``             :class:`~sionna_mmir.radar.RadarConfig`
-    ``range_window``      window over samples (unit coherent gain)
-    ``azimuth_window``    window over the azimuth row's filled extent
-    ``doppler_window``    window over chirps (``'noncoherent'`` only)
-    ``n_range``           range FFT length, default ``num_samples``
-    ``n_azimuth``         azimuth FFT length (128)
-    ``doppler``           ``'mean'`` (coherent chirp mean, zero Doppler) or
-                          ``'noncoherent'`` (Doppler FFT + TDM compensation,
-                          magnitudes summed over Doppler bins)
-    ``tdm_compensation``  apply the Tx-slot Doppler phase correction
-                          (``'noncoherent'`` only)
-    ``virtual_array``     a prebuilt :class:`.VirtualArray` (optional)
-    ====================  ====================================================
+    Only the virtual-array row holding the most distinct azimuth positions is
+    used (cascade: 86 elements at elevation 0).
 
-    Returns ``(ra, ranges_m, azimuths_rad)``: ``ra`` float ``[n_range,
-    n_azimuth]`` magnitudes (float32 for complex64 input), ``ranges_m``
-    ``[n_range]`` [m], ``azimuths_rad`` ``[n_azimuth]`` [rad] increasing
-    (positive = left, ``+y``).  Only the virtual-array row holding the most
-    distinct azimuth positions is used (cascade: 86 elements at elevation 0).
+    Parameters
+    ----------
+    adc : array_like
+        Complex ``[tx, rx, chirp, sample]`` (= ``radar.adc_shape``).
+    radar : RadarConfig
+        Waveform and layout.
+    range_window : str, optional
+        Window over samples (unit coherent gain).
+    azimuth_window : str, optional
+        Window over the azimuth row's filled extent.
+    doppler_window : str, optional
+        Window over chirps (``'noncoherent'`` only).
+    n_range : int, optional
+        Range FFT length, default ``num_samples``.
+    n_azimuth : int, optional
+        Azimuth FFT length (128).
+    doppler : {"mean", "noncoherent"}, optional
+        ``'mean'`` (coherent chirp mean, zero Doppler) or ``'noncoherent'``
+        (Doppler FFT + TDM compensation, magnitudes summed over Doppler bins).
+    tdm_compensation : bool, optional
+        Apply the Tx-slot Doppler phase correction (``'noncoherent'`` only).
+    virtual_array : VirtualArray, optional
+        A prebuilt :class:`.VirtualArray`.
+
+    Returns
+    -------
+    ra : numpy.ndarray
+        float ``[n_range, n_azimuth]`` magnitudes (float32 for complex64
+        input).
+    ranges_m : numpy.ndarray
+        ``[n_range]`` [m].
+    azimuths_rad : numpy.ndarray
+        ``[n_azimuth]`` [rad], increasing (positive = left, ``+y``).
     """
     _check_mode(doppler, "range_azimuth")
     x = check_adc(adc, radar, "range_azimuth")
@@ -164,15 +179,29 @@ def range_doppler(adc, radar: RadarConfig, *, range_window="hann", doppler_windo
                   n_range: int | None = None, n_doppler: int | None = None):
     """Range-Doppler magnitude map, summed non-coherently over all channels.
 
-    ====================  ====================================================
-    ``adc``               complex ``[tx, rx, chirp, sample]``
-    ``n_range``           range FFT length (default ``num_samples``)
-    ``n_doppler``         Doppler FFT length (default ``num_chirps``)
-    ====================  ====================================================
+    Parameters
+    ----------
+    adc : array_like
+        Complex ``[tx, rx, chirp, sample]``.
+    radar : RadarConfig
+        Waveform and layout.
+    range_window, doppler_window : str, optional
+        Windows over samples and chirps (unit coherent gain).
+    n_range : int, optional
+        Range FFT length (default ``num_samples``).
+    n_doppler : int, optional
+        Doppler FFT length (default ``num_chirps``).
 
-    Returns ``(rd, ranges_m, velocities_m_s)``: ``rd`` float ``[n_range,
-    n_doppler]`` = ``sum_{tx,rx} |DopplerFFT(RangeFFT(adc))|``; velocities
-    [m/s] in fftshift order, positive = moving away (:mod:`.doppler_fft`).
+    Returns
+    -------
+    rd : numpy.ndarray
+        float ``[n_range, n_doppler]`` = ``sum_{tx,rx}
+        |DopplerFFT(RangeFFT(adc))|``.
+    ranges_m : numpy.ndarray
+        ``[n_range]`` [m].
+    velocities_m_s : numpy.ndarray
+        ``[n_doppler]`` [m/s] in fftshift order, positive = moving away
+        (:mod:`.doppler_fft`).
     """
     x = check_adc(adc, radar, "range_doppler")
     rfft, ranges = range_fft(x, radar, range_window, n_range)

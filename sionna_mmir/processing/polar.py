@@ -15,23 +15,36 @@ def polar_to_cartesian(ra, ranges_m, azimuths_rad, x_res: float | None = None,
                        y_res: float | None = None, max_range: float | None = None):
     """Resample a range-azimuth map onto a Cartesian ``(y, x)`` grid.
 
-    ==================  ======================================================
-    ``ra``              real ``[n_range, n_azimuth]`` (e.g. magnitudes)
-    ``ranges_m``        ``[n_range]`` increasing [m]
-    ``azimuths_rad``    ``[n_azimuth]`` increasing [rad] (positive = left)
-    ``x_res``           pixel size along x [m]; default the range bin width
-    ``y_res``           pixel size along y [m]; default ``x_res``
-    ``max_range``       extent [m]; default ``ranges_m[-1]``
-    ==================  ======================================================
-
-    Returns ``(image [ny, nx], x_m [nx], y_m [ny])``: ``x_m`` from 0 to
-    ``max_range`` (pixel centres), ``y_m`` symmetric about 0 covering
-    ``max_range * sin(max |az|)``, increasing (row 0 = rightmost, most
-    negative y).  Bilinear interpolation in ``(range, azimuth)``
+    Bilinear interpolation in ``(range, azimuth)``
     (``scipy.interpolate.RegularGridInterpolator``); pixels outside the field
     of view (range beyond ``min(max_range, ranges_m[-1])``, below
-    ``ranges_m[0]`` or azimuth outside ``azimuths_rad``) are 0.
-    Repeated azimuths (clipped at +-90 deg) are dropped.
+    ``ranges_m[0]`` or azimuth outside ``azimuths_rad``) are 0.  Repeated
+    azimuths (clipped at +-90 deg) are dropped.
+
+    Parameters
+    ----------
+    ra : array_like
+        Real ``[n_range, n_azimuth]`` (e.g. magnitudes).
+    ranges_m : array_like
+        ``[n_range]`` increasing [m].
+    azimuths_rad : array_like
+        ``[n_azimuth]`` increasing [rad] (positive = left).
+    x_res : float, optional
+        Pixel size along x [m]; default the range bin width.
+    y_res : float, optional
+        Pixel size along y [m]; default ``x_res``.
+    max_range : float, optional
+        Extent [m]; default ``ranges_m[-1]``.
+
+    Returns
+    -------
+    image : numpy.ndarray
+        ``[ny, nx]``.
+    x_m : numpy.ndarray
+        ``[nx]`` from 0 to ``max_range`` (pixel centres) [m].
+    y_m : numpy.ndarray
+        ``[ny]`` symmetric about 0 covering ``max_range * sin(max |az|)``,
+        increasing (row 0 = rightmost, most negative y) [m].
     """
     where = "polar_to_cartesian"
     img = np.asarray(ra)

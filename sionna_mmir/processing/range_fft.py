@@ -49,20 +49,31 @@ def range_fft(adc, radar: RadarConfig, window="hann", n_fft: int | None = None,
               full: bool = True):
     """Windowed FFT over the last (sample) axis.
 
-    ==============  ==========================================================
-    ``adc``         complex ``[..., num_samples]`` (any leading axes, e.g.
-                    ``[tx, rx, chirp, sample]`` or with a frame axis)
-    ``radar``       :class:`~sionna_mmir.radar.RadarConfig` (waveform)
-    ``window``      window name (:func:`~.windows.get_window`), unit
-                    coherent gain; ``None`` / ``'rect'`` for none
-    ``n_fft``       FFT length (zero padding), default ``num_samples``
-    ``full``        ``True``: all ``n_fft`` bins (ranges ``0 .. max_range``);
-                    ``False``: the first ``n_fft // 2`` bins only
-    ==============  ==========================================================
+    A unit-amplitude tone on a bin has magnitude ``num_samples``.
 
-    Returns ``(spectrum, ranges_m)``: complex ``[..., n_fft]`` (or
-    ``[..., n_fft // 2]``; complex64 for complex64 input) and float64 ranges
-    [m].  A unit-amplitude tone on a bin has magnitude ``num_samples``.
+    Parameters
+    ----------
+    adc : array_like
+        Complex ``[..., num_samples]`` (any leading axes, e.g. ``[tx, rx,
+        chirp, sample]`` or with a frame axis).
+    radar : RadarConfig
+        The waveform.
+    window : str or None, optional
+        Window name (:func:`~.windows.get_window`), unit coherent gain;
+        ``None`` / ``'rect'`` for none.
+    n_fft : int, optional
+        FFT length (zero padding), default ``num_samples``.
+    full : bool, optional
+        ``True``: all ``n_fft`` bins (ranges ``0 .. max_range``); ``False``:
+        the first ``n_fft // 2`` bins only.
+
+    Returns
+    -------
+    spectrum : numpy.ndarray
+        Complex ``[..., n_fft]`` (or ``[..., n_fft // 2]``; complex64 for
+        complex64 input).
+    ranges_m : numpy.ndarray
+        float64 bin ranges [m].
     """
     x = np.asarray(adc)
     if x.ndim < 1 or x.shape[-1] != radar.num_samples:

@@ -34,17 +34,29 @@ from ..radar.config import RadarConfig
 class VirtualArray:
     """Virtual-array geometry of a :class:`~sionna_mmir.radar.RadarConfig`.
 
-    Attributes (all NumPy):
+    Parameters
+    ----------
+    radar : RadarConfig
+        The radar whose Tx x Rx pairs form the virtual array.
+    tol : float, optional
+        Tolerance [half-wavelengths] of the grid positions.
 
-    ==================  ======================================================
-    ``az_index``        int ``[tx, rx]`` azimuth column of each pair
-    ``el_index``        int ``[tx, rx]`` elevation row of each pair
-    ``n_az``, ``n_el``  grid size (columns, rows)
-    ``counts``          int ``[n_el, n_az]`` pairs per cell (0 = empty)
-    ``azimuth_row``     elevation row used for range-azimuth maps
-    ``row_support``     ``(first, last + 1)`` filled columns of that row
-    ``tx_slot``         int ``[tx]`` TDM slot of each Tx within a loop
-    ==================  ======================================================
+    Attributes
+    ----------
+    az_index : numpy.ndarray
+        int ``[tx, rx]`` azimuth column of each pair.
+    el_index : numpy.ndarray
+        int ``[tx, rx]`` elevation row of each pair.
+    n_az, n_el : int
+        Grid size (columns, rows).
+    counts : numpy.ndarray
+        int ``[n_el, n_az]`` pairs per cell (0 = empty).
+    azimuth_row : int
+        Elevation row used for range-azimuth maps.
+    row_support : tuple of int
+        ``(first, last + 1)`` filled columns of that row.
+    tx_slot : numpy.ndarray
+        int ``[tx]`` TDM slot of each Tx within a loop.
     """
 
     def __init__(self, radar: RadarConfig, tol: float = 1e-3):
@@ -153,15 +165,22 @@ class VirtualArray:
     def tdm_compensate(self, spectrum, doppler_hz, doppler_axis: int = 2) -> np.ndarray:
         """Remove the Tx-slot Doppler phase from a Doppler spectrum.
 
-        ==================  ==================================================
-        ``spectrum``        complex ``[tx, rx, ...]`` with the Doppler bins on
-                            ``doppler_axis`` (default 2: ``[tx, rx, doppler, range]``)
-        ``doppler_hz``      ``[n_doppler]`` Doppler frequency of each bin [Hz]
-                            (:func:`~.doppler_fft.doppler_bins_hz`)
-        ==================  ==================================================
+        Parameters
+        ----------
+        spectrum : numpy.ndarray
+            Complex ``[tx, rx, ...]`` with the Doppler bins on ``doppler_axis``
+            (default 2: ``[tx, rx, doppler, range]``).
+        doppler_hz : array_like
+            ``[n_doppler]`` Doppler frequency of each bin [Hz]
+            (:func:`~.doppler_fft.doppler_bins_hz`).
+        doppler_axis : int, optional
+            Axis of the Doppler bins.
 
-        Returns the spectrum multiplied by ``exp(-j 2 pi f_D s_i T_chirp)``
-        (same shape and dtype).
+        Returns
+        -------
+        numpy.ndarray
+            The spectrum multiplied by ``exp(-j 2 pi f_D s_i T_chirp)`` (same
+            shape and dtype).
         """
         x = np.asarray(spectrum)
         r = self.radar

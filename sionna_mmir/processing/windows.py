@@ -26,18 +26,28 @@ _ALIASES = {"hanning": "hann", "rectangular": "rect", "boxcar": "rect", "ones": 
 def get_window(name, n: int) -> np.ndarray:
     """A length-``n`` window with unit coherent gain (``sum(w) == n``).
 
-    ==============  ==========================================================
-    ``name``        ``'hann'`` (scipy ``hann(n, sym=True)``), ``'hamming'``,
-                    ``'blackman'``, ``'taylor'`` (nbar 4, 30 dB sidelobes),
-                    ``'chebyshev'`` (80 dB sidelobes), ``'rect'`` / ``'none'``
-                    (or ``None``): all ones.  Case-insensitive.
-    ``n``           window length (>= 1)
-    ==============  ==========================================================
+    Symmetric windows with zero end points (Hann, Blackman) degenerate for
+    ``n <= 2`` (all zeros); there the rectangular window is returned instead.
 
-    Returns float64 ``[n]``.  Symmetric windows with zero end points (Hann,
-    Blackman) degenerate for ``n <= 2`` (all zeros); there the rectangular
-    window is returned instead.  An unknown name raises
-    :class:`~sionna_mmir.errors.ConfigError` listing the choices.
+    Parameters
+    ----------
+    name : str or None
+        ``'hann'`` (scipy ``hann(n, sym=True)``), ``'hamming'``,
+        ``'blackman'``, ``'taylor'`` (nbar 4, 30 dB sidelobes), ``'chebyshev'``
+        (80 dB sidelobes), ``'rect'`` / ``'none'`` (or ``None``): all ones.
+        Case-insensitive.
+    n : int
+        Window length (>= 1).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 ``[n]``.
+
+    Raises
+    ------
+    ConfigError
+        An unknown name (the message lists the choices).
     """
     try:
         n = int(n)

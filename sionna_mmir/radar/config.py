@@ -45,31 +45,44 @@ def _as_positions(name: str, value) -> np.ndarray:
 class RadarConfig:
     """An FMCW TDM-MIMO radar: waveform, antennas and pose.
 
-    All quantities are SI.
+    All quantities are SI.  ADC arrays are always indexed ``[tx, rx, chirp,
+    sample]`` by the Tx/Rx index of ``tx_positions`` / ``rx_positions``;
+    ``tdm_order`` only sets timing.
 
-    ===================  ========================================================
-    Attribute            Meaning
-    ===================  ========================================================
-    ``start_frequency``  chirp start frequency ``f_0`` [Hz]
-    ``slope``            chirp slope ``S`` [Hz/s]
-    ``sample_rate``      complex ADC sample rate ``f_s`` [Hz]
-    ``num_samples``      ADC samples per chirp ``N``
-    ``num_chirps``       chirp loops per frame (each loop fires every Tx once)
-    ``idle_time``        idle time before each ramp [s]
-    ``adc_start_time``   ADC start measured from ramp start [s]
-    ``ramp_end_time``    ramp duration [s]
-    ``tx_positions``     ``[n_tx, 3]`` Tx phase centres, radar frame [m]
-    ``rx_positions``     ``[n_rx, 3]`` Rx phase centres, radar frame [m]
-    ``tdm_order``        Tx indices in firing order within one loop
-    ``position``         radar origin in the scene [m]
-    ``orientation``      ``(yaw, pitch, roll)`` [rad], Sionna convention
-    ``name``             a label
-    ``design_frequency`` frequency the layout's lambda/2 refers to [Hz]
-    ``notes``            provenance notes (e.g. repaired config values)
-    ===================  ========================================================
-
-    ADC arrays are always indexed ``[tx, rx, chirp, sample]`` by the Tx/Rx index
-    of ``tx_positions`` / ``rx_positions``; ``tdm_order`` only sets timing.
+    Parameters
+    ----------
+    start_frequency : float
+        Chirp start frequency ``f_0`` [Hz].
+    slope : float
+        Chirp slope ``S`` [Hz/s].
+    sample_rate : float
+        Complex ADC sample rate ``f_s`` [Hz].
+    num_samples : int
+        ADC samples per chirp ``N``.
+    num_chirps : int
+        Chirp loops per frame (each loop fires every Tx once).
+    idle_time : float
+        Idle time before each ramp [s].
+    adc_start_time : float
+        ADC start measured from ramp start [s].
+    ramp_end_time : float
+        Ramp duration [s].
+    tx_positions : numpy.ndarray
+        ``[n_tx, 3]`` Tx phase centres, radar frame [m].
+    rx_positions : numpy.ndarray
+        ``[n_rx, 3]`` Rx phase centres, radar frame [m].
+    tdm_order : tuple of int, optional
+        Tx indices in firing order within one loop.
+    position : numpy.ndarray, optional
+        ``(3,)`` radar origin in the scene [m].
+    orientation : numpy.ndarray, optional
+        ``(yaw, pitch, roll)`` [rad], Sionna convention.
+    name : str, optional
+        A label.
+    design_frequency : float, optional
+        Frequency the layout's lambda/2 refers to [Hz].
+    notes : tuple of str, optional
+        Provenance notes (e.g. repaired config values).
     """
 
     start_frequency: float

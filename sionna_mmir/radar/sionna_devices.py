@@ -60,21 +60,33 @@ def radar_from_sionna(scene, base="mmwcas", transmitter: str | None = None,
                       receiver: str | None = None, use_arrays: bool = True) -> RadarConfig:
     """A ``RadarConfig`` posed at a Sionna scene's transmitter.
 
-    ===========  =========================================================
-    scene        ``sionna.rt.Scene`` with at least one ``Transmitter``
-    base         preset name or ``RadarConfig``: waveform (and layout when
-                 the scene has no arrays or ``use_arrays`` is False)
-    transmitter  name of the transmitter (default: the only one)
-    receiver     name of the receiver (default: the only one, or none:
-                 co-located with the transmitter)
-    use_arrays   take the layout from ``scene.tx_array`` / ``rx_array``
-                 when both are set
-    returns      :class:`RadarConfig` (``position`` [m], ``orientation``
-                 [rad] from the transmitter; provenance in ``notes``)
-    ===========  =========================================================
+    Parameters
+    ----------
+    scene : sionna.rt.Scene
+        a scene with at least one ``Transmitter``
+    base : str or RadarConfig, optional
+        preset name or ``RadarConfig``: waveform (and layout when
+        the scene has no arrays or ``use_arrays`` is False)
+    transmitter : str, optional
+        name of the transmitter (default: the only one)
+    receiver : str, optional
+        name of the receiver (default: the only one, or none:
+        co-located with the transmitter)
+    use_arrays : bool, optional
+        take the layout from ``scene.tx_array`` / ``rx_array``
+        when both are set
 
-    Raises ``ConfigError`` when the scene has no (or an ambiguous)
-    transmitter, or a receiver oriented differently from it.
+    Returns
+    -------
+    RadarConfig
+        the radar (``position`` [m], ``orientation``
+        [rad] from the transmitter; provenance in ``notes``)
+
+    Raises
+    ------
+    ConfigError
+        The scene has no (or an ambiguous) transmitter, or a receiver
+        oriented differently from it.
     """
     radar = preset_radar(base) if isinstance(base, str) else base
     if not isinstance(radar, RadarConfig):
@@ -109,18 +121,26 @@ def radar_from_sionna(scene, base="mmwcas", transmitter: str | None = None,
 def radar_to_sionna(radar: RadarConfig, scene=None, name: str = "radar", pattern: str = "iso"):
     """Sionna devices of a radar: ``(Transmitter, Receiver, tx_array, rx_array)``.
 
-    ========  ============================================================
-    radar     :class:`RadarConfig` (pose and layout)
-    scene     optional ``sionna.rt.Scene``: the devices are added to it and
-              its ``tx_array`` / ``rx_array`` set
-    name      device names ``<name>-tx`` / ``<name>-rx``
-    pattern   Sionna antenna pattern name (default ``"iso"``, V-polarised)
-    returns   the four objects
-    ========  ============================================================
-
     Element positions are normalised by ``lambda`` at ``design_frequency``
     (the inverse of :func:`radar_from_sionna`); Sionna stores them in
     float32, so a round trip agrees to ~1e-7 relative.
+
+    Parameters
+    ----------
+    radar : RadarConfig
+        :class:`RadarConfig` (pose and layout)
+    scene : sionna.rt.Scene, optional
+        the devices are added to it and
+        its ``tx_array`` / ``rx_array`` set
+    name : str, optional
+        device names ``<name>-tx`` / ``<name>-rx``
+    pattern : str, optional
+        Sionna antenna pattern name (default ``"iso"``, V-polarised)
+
+    Returns
+    -------
+    tuple
+        the four objects ``(Transmitter, Receiver, tx_array, rx_array)``
     """
     import mitsuba as mi
     from sionna.rt import AntennaArray, Receiver, Transmitter

@@ -14,14 +14,15 @@ array ``[..., 3]``.  Angles used below::
 
 Patterns
 --------
-==========================  ==================================================
-:class:`CosinePowerPattern`  learnable separable ``G0 cos(az)^q_az cos(el)^q_el``
-                             (front hemisphere), per-element ``q``, normalised
-                             to directivity in closed form
-:class:`IsotropicPattern`    ``G = 1``
-:class:`SionnaPattern`       Sionna RT 2.2's own patterns ("iso", "dipole",
-                             "hw_dipole", "tr38901"), ``|C_theta|^2+|C_phi|^2``
-==========================  ==================================================
+:class:`CosinePowerPattern`
+    learnable separable ``G0 cos(az)^q_az cos(el)^q_el``
+    (front hemisphere), per-element ``q``, normalised
+    to directivity in closed form
+:class:`IsotropicPattern`
+    ``G = 1``
+:class:`SionnaPattern`
+    Sionna RT 2.2's own patterns ("iso", "dipole",
+    "hw_dipole", "tr38901"), ``|C_theta|^2+|C_phi|^2``
 
 :func:`make_pattern` builds one from a string (``"cos"``, ``"iso"``,
 ``"sionna:tr38901"``, ``"sionna:dipole:H"``) or passes a pattern through.
@@ -197,27 +198,28 @@ class BeamPattern:
     """Base class of antenna element patterns (radar frame, power gain).
 
     Subclasses implement :meth:`gain` (and, where needed, :meth:`field`,
-    :meth:`polarization`, :meth:`params`).
+    :meth:`polarization`, :meth:`params`).  What the methods return:
 
-    ==============  ===========================================================
-    method          returns
-    ==============  ===========================================================
-    ``gain``        ``mi.Float [N]``, linear power gain (dBi = 10 log10)
-    ``field``       ``mi.Float [N]``, ``sqrt(gain)`` (field amplitude factor)
-    ``polarization``  ``mi.Vector3f [N]``, unit E-field direction, orthogonal
-                    to the direction
-    ``params``      ``dict[str, mi.Float]`` of learnable arrays (may be empty)
-    ``gain_np``     ``np.ndarray [...]`` float64, for tests and plots
-    ==============  ===========================================================
+    ``gain``
+        ``mi.Float [N]``, linear power gain (dBi = 10 log10).
+    ``field``
+        ``mi.Float [N]``, ``sqrt(gain)`` (field amplitude factor).
+    ``polarization``
+        ``mi.Vector3f [N]``, unit E-field direction, orthogonal to the
+        direction.
+    ``params``
+        ``dict[str, mi.Float]`` of learnable arrays (may be empty).
+    ``gain_np``
+        ``np.ndarray [...]`` float64, for tests and plots.
 
     Arguments common to all methods:
 
-    =============  ==========================================================
-    direction      unit vectors in the radar frame: ``mi.Vector3f [N]`` or
-                   NumPy ``[..., 3]`` (flattened to ``N`` queries)
-    element        ``None`` (single-element patterns), or element index per
-                   query: ``mi.UInt32 [N]`` / ``[1]``, int, or int array
-    =============  ==========================================================
+    ``direction``
+        Unit vectors in the radar frame: ``mi.Vector3f [N]`` or NumPy ``[...,
+        3]`` (flattened to ``N`` queries).
+    ``element``
+        ``None`` (single-element patterns), or element index per query:
+        ``mi.UInt32 [N]`` / ``[1]``, int, or int array.
     """
 
     #: number of per-element parameter sets
@@ -323,11 +325,12 @@ class BeamPattern:
 class IsotropicPattern(BeamPattern):
     """Isotropic element: ``G = 1`` (0 dBi) in every direction.
 
-    ============  =====================================================
-    polarization  "V" (default) or "H": linear, see module notes
-    ============  =====================================================
-
     ``element`` is accepted and ignored (all elements are isotropic).
+
+    Parameters
+    ----------
+    polarization : {"V", "H"}, optional
+        Linear polarisation, see module notes (default ``"V"``).
     """
 
     def __init__(self, polarization: str = "V"):
@@ -428,16 +431,20 @@ class CosinePowerPattern(BeamPattern):
 
     Parameters
     ----------
-    ============  ===========  ================================================
-    q_az          float or     azimuth exponent(s), >= 0, unitless; one value
-                  [n_elements] for all elements or one per element
-    q_el          same         elevation exponent(s), >= 0
-    n_elements    int >= 1     number of elements (parameter sets)
-    polarization  "V" | "H"    linear polarisation (module notes)
-    ============  ===========  ================================================
+    q_az : float or array_like, optional
+        Azimuth exponent(s), >= 0, unitless: one value for all elements or
+        ``[n_elements]``, one per element.
+    q_el : float or array_like, optional
+        Elevation exponent(s), >= 0, same forms.
+    n_elements : int, optional
+        Number of elements (parameter sets), >= 1.
+    polarization : {"V", "H"}, optional
+        Linear polarisation (module notes).
 
-    Invalid values (negative, NaN/Inf, wrong length) raise
-    :class:`~sionna_mmir.errors.ConfigError`.
+    Raises
+    ------
+    ConfigError
+        Invalid values (negative, NaN/Inf, wrong length).
     """
 
     def __init__(self, q_az=DEFAULT_Q_AZ, q_el=DEFAULT_Q_EL, n_elements: int = 1,
@@ -599,29 +606,33 @@ class SionnaPattern(BeamPattern):
     ``theta_phi_from_unit_vec`` (``phi = 0`` at the poles).  The power gain
     is ``|C_theta|^2 + |C_phi|^2`` (Sionna's ``compute_gain`` definition).
 
-    Sionna 2.2's registered patterns (``sionna.rt.antenna_pattern``):
+    Sionna 2.2's registered patterns (``sionna.rt.antenna_pattern``), with
+    their vertically polarised ``C_theta`` and peak gain:
 
-    =========  ==============================================  =============
-    name       vertically polarised ``C_theta``                peak gain
-    =========  ==============================================  =============
-    iso        1                                               0 dBi
-    dipole     ``sqrt(1.5) |sin theta|`` (Balanis 4-26a)       1.76 dBi
-    hw_dipole  ``sqrt(1.643) |cos(pi/2 cos theta) / sin theta|``  2.16 dBi
-    tr38901    TR 38.901 Table 7.3-1, 65 deg 3 dB widths,      8 dBi
-               30 dB floor (not normalised: efficiency 66 %)
-    =========  ==============================================  =============
-
-    Parameters
-    ----------
-    ==================  ========================================================
-    name                registered Sionna pattern name (above)
-    polarization        Sionna polarisation: "V", "H", "VH", "cross"
-    polarization_model  "tr38901_2" (default, Sionna's default) or "tr38901_1"
-    port                which pattern of a dual-polarised antenna (0 or 1)
-    ==================  ========================================================
+    ``iso``
+        1; 0 dBi.
+    ``dipole``
+        ``sqrt(1.5) |sin theta|`` (Balanis 4-26a); 1.76 dBi.
+    ``hw_dipole``
+        ``sqrt(1.643) |cos(pi/2 cos theta) / sin theta|``; 2.16 dBi.
+    ``tr38901``
+        TR 38.901 Table 7.3-1, 65 deg 3 dB widths, 30 dB floor (not
+        normalised: efficiency 66 %); 8 dBi.
 
     No learnable parameters; ``element`` is ignored (all elements share the
     pattern).  :meth:`polarization` is Sionna's field direction (module notes).
+
+    Parameters
+    ----------
+    name : str
+        Registered Sionna pattern name (above).
+    polarization : {"V", "H", "VH", "cross"}, optional
+        Sionna polarisation.
+    polarization_model : {"tr38901_2", "tr38901_1"}, optional
+        Sionna's polarisation model (default ``"tr38901_2"``, Sionna's
+        default).
+    port : {0, 1}, optional
+        Which pattern of a dual-polarised antenna.
     """
 
     def __init__(self, name: str, polarization: str = "V",
@@ -702,18 +713,25 @@ _ISO_NAMES = ("iso", "isotropic")
 def make_pattern(spec, **kwargs) -> BeamPattern:
     """Build a :class:`BeamPattern` from a specification.
 
-    ===============================  =========================================
-    spec                             result
-    ===============================  =========================================
-    a :class:`BeamPattern`           returned unchanged (no ``kwargs``)
-    ``"cos"`` / ``"cosine"``         ``CosinePowerPattern(**kwargs)``
-    ``"iso"`` / ``"isotropic"``      ``IsotropicPattern(**kwargs)``
-    ``"sionna:NAME"``                ``SionnaPattern(NAME, **kwargs)``
-    ``"sionna:NAME:POL"``            same, with Sionna polarisation ``POL``
-    ===============================  =========================================
+    Parameters
+    ----------
+    spec : BeamPattern or str
+        A :class:`BeamPattern` (returned unchanged; no ``kwargs``);
+        ``"cos"`` / ``"cosine"``: ``CosinePowerPattern(**kwargs)``;
+        ``"iso"`` / ``"isotropic"``: ``IsotropicPattern(**kwargs)``;
+        ``"sionna:NAME"``: ``SionnaPattern(NAME, **kwargs)``;
+        ``"sionna:NAME:POL"``: the same, with Sionna polarisation ``POL``.
+    **kwargs
+        Go to the constructor (e.g. ``q_az=3, n_elements=12``).
 
-    ``kwargs`` go to the constructor (e.g. ``q_az=3, n_elements=12``).
-    Anything else raises :class:`~sionna_mmir.errors.ConfigError`.
+    Returns
+    -------
+    BeamPattern
+
+    Raises
+    ------
+    ConfigError
+        Any other ``spec``.
     """
     if isinstance(spec, BeamPattern):
         if kwargs:

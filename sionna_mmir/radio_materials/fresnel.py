@@ -159,14 +159,21 @@ def _dr_complex(mi, x):
 def complex_permittivity(eps_real, eps_imag, backend: str = "auto"):
     """``eps_r = eps' - j eps''`` from the two real per-vertex parameters.
 
-    ========  ==================================================
-    eps_real  eps' (scalar, array or ``mi.Float``)
-    eps_imag  eps'' >= 0 (loss; same types)
-    backend   ``"auto"`` | ``"numpy"`` | ``"drjit"``
-    returns   complex128 ndarray or ``mi.Complex2f``
-    ========  ==================================================
-
     With Dr.Jit the result stays attached to the AD graph of both inputs.
+
+    Parameters
+    ----------
+    eps_real : float or array_like or mi.Float
+        eps' (scalar, array or ``mi.Float``)
+    eps_imag : float or array_like or mi.Float
+        eps'' >= 0 (loss; same types)
+    backend : {"auto", "numpy", "drjit"}, optional
+        array library of the computation (``"auto"``: from the inputs)
+
+    Returns
+    -------
+    numpy.ndarray or mi.Complex2f
+        complex128 ndarray or ``mi.Complex2f``
     """
     if _resolve_backend(backend, eps_real, eps_imag) == "drjit":
         mi, _ = _drjit()
@@ -296,19 +303,26 @@ def _dr_slab(cos_theta, eps_r, thickness, frequency, transmission_phase):
 def fresnel_coefficients(cos_theta, eps_r, backend: str = "auto") -> InterfaceCoefficients:
     """Complex Fresnel coefficients of a planar air -> ``eps_r`` interface.
 
-    =========  ===========================================================
-    cos_theta  cosine of the incidence angle from the normal; ``|.|`` is
-               used, clipped to ``[1e-6, 1]`` (array / ``mi.Float``)
-    eps_r      complex relative permittivity ``eps' - j eps''``
-               (complex array / ``mi.Complex2f``)
-    backend    ``"auto"`` | ``"numpy"`` | ``"drjit"``
-    returns    :class:`InterfaceCoefficients` ``(r_s, r_p, t_s, t_p)``:
-               E-field ratios, TE (s, perpendicular) and TM (p, parallel)
-    =========  ===========================================================
-
     ITU-R P.2040-3 eqs. (37a), (37b) (reflection) and the matching
     transmission coefficients, Born & Wolf Sec. 1.5.2 (see module docstring
     for the sign convention).
+
+    Parameters
+    ----------
+    cos_theta : array_like or mi.Float
+        cosine of the incidence angle from the normal; ``|.|`` is
+        used, clipped to ``[1e-6, 1]`` (array / ``mi.Float``)
+    eps_r : array_like or mi.Complex2f
+        complex relative permittivity ``eps' - j eps''``
+        (complex array / ``mi.Complex2f``)
+    backend : {"auto", "numpy", "drjit"}, optional
+        array library of the computation (``"auto"``: from the inputs)
+
+    Returns
+    -------
+    InterfaceCoefficients
+        ``(r_s, r_p, t_s, t_p)``:
+        E-field ratios, TE (s, perpendicular) and TM (p, parallel)
     """
     if _resolve_backend(backend, cos_theta, eps_r) == "drjit":
         mi, dr = _drjit()
@@ -321,24 +335,34 @@ def slab_coefficients(cos_theta, eps_r, thickness, frequency, backend: str = "au
                       transmission_phase: str = "p2040") -> SlabCoefficients:
     """ITU-R P.2040-3 single-layer slab reflection / transmission coefficients.
 
-    ==================  ====================================================
-    cos_theta           cosine of the incidence angle (see
-                        :func:`fresnel_coefficients`)
-    eps_r               complex relative permittivity ``eps' - j eps''``
-    thickness           slab thickness ``d`` [m] (negative values -> 0)
-    frequency           frequency [Hz] (wavelength ``lambda = c / f``)
-    backend             ``"auto"`` | ``"numpy"`` | ``"drjit"``
-    transmission_phase  ``"p2040"``: ``T`` exactly as eq. (43b), phase
-                        referenced front face -> back face;
-                        ``"insertion"``: ``T * exp(+j 2 pi d cos(theta) /
-                        lambda)``, relative to free-space propagation over
-                        the same region (for thin-surface ray tracing)
-    returns             :class:`SlabCoefficients` ``(r_s, r_p, t_s, t_p)``
-    ==================  ====================================================
-
     Implements ITU-R P.2040-3 eqs. (43a), (43b) and (44) with the single-
     interface ``r`` of eqs. (37a), (37b); see the module docstring.  All
     inputs broadcast against each other.
+
+    Parameters
+    ----------
+    cos_theta : array_like or mi.Float
+        cosine of the incidence angle (see
+        :func:`fresnel_coefficients`)
+    eps_r : array_like or mi.Complex2f
+        complex relative permittivity ``eps' - j eps''``
+    thickness : float or array_like or mi.Float
+        slab thickness ``d`` [m] (negative values -> 0)
+    frequency : float
+        frequency [Hz] (wavelength ``lambda = c / f``)
+    backend : {"auto", "numpy", "drjit"}, optional
+        array library of the computation (``"auto"``: from the inputs)
+    transmission_phase : str, optional
+        ``"p2040"``: ``T`` exactly as eq. (43b), phase
+        referenced front face -> back face;
+        ``"insertion"``: ``T * exp(+j 2 pi d cos(theta) /
+        lambda)``, relative to free-space propagation over
+        the same region (for thin-surface ray tracing)
+
+    Returns
+    -------
+    SlabCoefficients
+        ``(r_s, r_p, t_s, t_p)``
     """
     _check_phase(transmission_phase)
     if _resolve_backend(backend, cos_theta, eps_r, thickness, frequency) == "drjit":
@@ -350,19 +374,29 @@ def energy_gate(cos_theta, eps_r, thickness, frequency, f_s=0.5, f_p=0.5,
                 backend: str = "auto"):
     """Polarisation-weighted slab reflectance ``A = f_s |R_s|^2 + f_p |R_p|^2``.
 
-    =========  ========================================================
-    cos_theta  cosine of the incidence angle
-    eps_r      complex relative permittivity ``eps' - j eps''``
-    thickness  slab thickness [m]
-    frequency  frequency [Hz]
-    f_s, f_p   power fractions of the incident wave in s and p
-               polarisation (antenna dependent; ``f_s + f_p <= 1``)
-    backend    ``"auto"`` | ``"numpy"`` | ``"drjit"``
-    returns    real array / ``mi.Float`` in ``[0, 1]``
-    =========  ========================================================
-
     The mmIR BSDF energy gate (paper Sec. 3.2) with ``R_s``, ``R_p`` from
     :func:`slab_coefficients` (ITU-R P.2040-3 eq. (43a)).
+
+    Parameters
+    ----------
+    cos_theta : array_like or mi.Float
+        cosine of the incidence angle
+    eps_r : array_like or mi.Complex2f
+        complex relative permittivity ``eps' - j eps''``
+    thickness : float or array_like or mi.Float
+        slab thickness [m]
+    frequency : float
+        frequency [Hz]
+    f_s, f_p : float, optional
+        power fractions of the incident wave in s and p
+        polarisation (antenna dependent; ``f_s + f_p <= 1``)
+    backend : {"auto", "numpy", "drjit"}, optional
+        array library of the computation (``"auto"``: from the inputs)
+
+    Returns
+    -------
+    numpy.ndarray or mi.Float
+        real array / ``mi.Float`` in ``[0, 1]``
     """
     for name, v in (("f_s", f_s), ("f_p", f_p)):
         if not _is_drjit(v) and np.any(np.asarray(v, dtype=float) < 0.0):

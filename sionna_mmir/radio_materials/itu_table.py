@@ -48,13 +48,18 @@ VERTEX_PARAMETER_NAMES = ("eps_real", "eps_imag", "sigma_h", "l_c", "tau", "thic
 class ItuRow:
     """One row of ITU-R P.2040-3 Table 3.
 
-    ============  ==========================================================
-    name          material class (lower case, ``_`` for blanks)
-    a, b          real permittivity fit ``eps' = a f_GHz^b``
-    c, d          conductivity fit ``sigma = c f_GHz^d`` [S/m]
-    f_min_ghz     lower end of the valid frequency range [GHz]
-    f_max_ghz     upper end of the valid frequency range [GHz]
-    ============  ==========================================================
+    Parameters
+    ----------
+    name : str
+        material class (lower case, ``_`` for blanks)
+    a, b : float
+        real permittivity fit ``eps' = a f_GHz^b``
+    c, d : float
+        conductivity fit ``sigma = c f_GHz^d`` [S/m]
+    f_min_ghz : float
+        lower end of the valid frequency range [GHz]
+    f_max_ghz : float
+        upper end of the valid frequency range [GHz]
     """
 
     name: str
@@ -101,12 +106,16 @@ del _row
 class SurfaceDefaults:
     """Initial values of the non-ITU per-vertex parameters of one material.
 
-    ==========  ========================================================
-    sigma_h     RMS surface height [m]
-    l_c         surface correlation length [m]
-    tau         KA/SPM blend factor in [0, 1] (1 = pure Kirchhoff/GGX)
-    thickness   slab thickness ``d`` of the P.2040 slab model [m]
-    ==========  ========================================================
+    Parameters
+    ----------
+    sigma_h : float
+        RMS surface height [m]
+    l_c : float
+        surface correlation length [m]
+    tau : float
+        KA/SPM blend factor in [0, 1] (1 = pure Kirchhoff/GGX)
+    thickness : float
+        slab thickness ``d`` of the P.2040 slab model [m]
     """
 
     sigma_h: float
@@ -155,15 +164,22 @@ SURFACE_DEFAULTS: dict[str, SurfaceDefaults] = {
 class ItuMaterial:
     """An ITU-R P.2040 material evaluated at one frequency.
 
-    ===============  =====================================================
-    name             material class (key of :data:`ITU_TABLE`)
-    eps_real         eps', real relative permittivity
-    eps_imag         eps'' >= 0, so that ``eps_r = eps' - j eps''``
-    conductivity     sigma [S/m]
-    valid_range_ghz  (f_min, f_max) of the Table 3 row used [GHz]
-    frequency_hz     frequency the values were evaluated at [Hz]
-    in_band          False when the row was extrapolated out of its range
-    ===============  =====================================================
+    Parameters
+    ----------
+    name : str
+        material class (key of :data:`ITU_TABLE`)
+    eps_real : float
+        eps', real relative permittivity
+    eps_imag : float
+        eps'' >= 0, so that ``eps_r = eps' - j eps''``
+    conductivity : float
+        sigma [S/m]
+    valid_range_ghz : tuple[float, float]
+        (f_min, f_max) of the Table 3 row used [GHz]
+    frequency_hz : float, optional
+        frequency the values were evaluated at [Hz]
+    in_band : bool, optional
+        False when the row was extrapolated out of its range
     """
 
     name: str
@@ -204,13 +220,19 @@ def _bands(rows) -> str:
 def eps_imag_from_conductivity(conductivity, frequency_hz):
     """eps'' = sigma / (2 pi f eps0) (ITU-R P.2040-3, Section 2.1.2).
 
-    =============  ==================================
-    conductivity   sigma [S/m] (scalar or array)
-    frequency_hz   frequency [Hz]
-    returns        eps'' (dimensionless, >= 0)
-    =============  ==================================
-
     Numerically ``17.98 * sigma / f_GHz``.
+
+    Parameters
+    ----------
+    conductivity : float or array_like
+        sigma [S/m] (scalar or array)
+    frequency_hz : float
+        frequency [Hz]
+
+    Returns
+    -------
+    float or numpy.ndarray
+        eps'' (dimensionless, >= 0)
     """
     return np.asarray(conductivity, dtype=float) / (2.0 * np.pi * float(frequency_hz) * EPSILON_0)
 
@@ -218,20 +240,30 @@ def eps_imag_from_conductivity(conductivity, frequency_hz):
 def itu_material(name: str, frequency_hz: float, allow_out_of_band: bool = False) -> ItuMaterial:
     """Evaluate ITU-R P.2040-3 Table 3 for material ``name`` at ``frequency_hz``.
 
-    =================  =====================================================
-    name               material class, e.g. ``"concrete"``, ``"ceiling board"``
-                       (case, blanks, hyphens and an ``itu_`` prefix ignored)
-    frequency_hz       frequency [Hz]
-    allow_out_of_band  if True, a frequency outside every Table 3 range of
-                       the material uses the row whose range is nearest
-                       (result flagged ``in_band=False``) instead of raising
-    returns            :class:`ItuMaterial`
-    =================  =====================================================
-
-    Raises :class:`~sionna_mmir.errors.ConfigError` for unknown materials and,
-    unless ``allow_out_of_band``, for frequencies outside the material's bands
-    (the message names the material, the frequency and the valid bands).
     When ranges overlap, the first row of the table that covers ``f`` wins.
+
+    Parameters
+    ----------
+    name : str
+        material class, e.g. ``"concrete"``, ``"ceiling board"``
+        (case, blanks, hyphens and an ``itu_`` prefix ignored)
+    frequency_hz : float
+        frequency [Hz]
+    allow_out_of_band : bool, optional
+        if True, a frequency outside every Table 3 range of
+        the material uses the row whose range is nearest
+        (result flagged ``in_band=False``) instead of raising
+
+    Returns
+    -------
+    ItuMaterial
+
+    Raises
+    ------
+    ConfigError
+        Unknown materials and, unless ``allow_out_of_band``, frequencies
+        outside the material's bands (the message names the material, the
+        frequency and the valid bands).
     """
     key = _normalise_name(name)
     if key not in ITU_TABLE:
@@ -263,14 +295,20 @@ def itu_material(name: str, frequency_hz: float, allow_out_of_band: bool = False
 def available_materials(frequency_hz: float, include_vacuum: bool = False) -> list[str]:
     """Names of the Table 3 materials with a row valid at ``frequency_hz``.
 
-    ===============  ================================================
-    frequency_hz     frequency [Hz]
-    include_vacuum   also list ``"vacuum"`` (air) when it applies
-    returns          list of names, in table order
-    ===============  ================================================
-
     At 77 GHz: concrete, plasterboard, wood, glass, ceiling_board, chipboard,
     floorboard, metal.
+
+    Parameters
+    ----------
+    frequency_hz : float
+        frequency [Hz]
+    include_vacuum : bool, optional
+        also list ``"vacuum"`` (air) when it applies
+
+    Returns
+    -------
+    list of str
+        names, in table order
     """
     f_ghz = _check_frequency(frequency_hz) / 1e9
     names = [n for n, rows in ITU_TABLE.items() if any(r.covers(f_ghz) for r in rows)]
@@ -283,17 +321,24 @@ def default_vertex_parameters(name: str, frequency_hz: float,
                               allow_out_of_band: bool = False) -> np.ndarray:
     """Initial per-vertex parameter vector of material ``name``.
 
-    =================  ===================================================
-    name               material class (see :func:`itu_material`)
-    frequency_hz       frequency [Hz]
-    allow_out_of_band  forwarded to :func:`itu_material`
-    returns            ``np.ndarray`` float64, shape (6,):
-                       ``[eps_real, eps_imag, sigma_h [m], l_c [m], tau,
-                       thickness [m]]`` (order :data:`VERTEX_PARAMETER_NAMES`)
-    =================  ===================================================
-
     Permittivity from ITU-R P.2040-3 Table 3, the rest from
     :data:`SURFACE_DEFAULTS` (documented assumptions, learned later).
+
+    Parameters
+    ----------
+    name : str
+        material class (see :func:`itu_material`)
+    frequency_hz : float
+        frequency [Hz]
+    allow_out_of_band : bool, optional
+        forwarded to :func:`itu_material`
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, shape (6,):
+        ``[eps_real, eps_imag, sigma_h [m], l_c [m], tau,
+        thickness [m]]`` (order :data:`VERTEX_PARAMETER_NAMES`)
     """
     mat = itu_material(name, frequency_hz, allow_out_of_band=allow_out_of_band)
     s = SURFACE_DEFAULTS[mat.name]

@@ -4,28 +4,35 @@ All energies are sums of ``|.|^2`` in the unitary-DFT range domain (equal to
 the time-domain energy, Parseval) and are reported relative to the measured
 capture's energy, in dB, or as fractions of the residual energy.
 
-==========================  ==================================================
-domain                      what it shows
-==========================  ==================================================
-``range_profile``           residual / measured energy per range bin ``[N]``
-                            (``np.fft`` order, ranges in ``bin_ranges``: the
-                            complex IF band ``[-0.1, 0.9) f_s`` of
-                            :meth:`EffectContext.band_frequencies`)
-``negative_frequency_half`` share in bins ``N/2 .. N-1`` (a real IF's negative
-                            frequencies: I/Q images of targets below half
-                            the maximum range, and those beyond it)
-``dc``                      share in bin 0 (DC offset)
-``near_range``              share below ``near_range_m`` (coupling / leakage)
-``channels``                share per virtual channel ``[T, R]`` and per chip
-                            pair (gains, delays, per-chip offsets)
-``chirps`` / ``doppler``    share per chirp loop ``[C]`` and per Doppler bin
-                            (motion, phase noise)
-``frames``                  share per frame ``[F]`` (movers, drift)
-``samples``                 share per fast-time sample ``[N]`` (clipping,
-                            chirp non-linearity at the ramp ends)
-``peaks``                   strongest residual range bins with their range
-                            [m] and share of the residual (missing scatterers)
-==========================  ==================================================
+What each domain shows:
+
+``range_profile``
+    residual / measured energy per range bin ``[N]``
+    (``np.fft`` order, ranges in ``bin_ranges``: the
+    complex IF band ``[-0.1, 0.9) f_s`` of
+    :meth:`EffectContext.band_frequencies`)
+``negative_frequency_half``
+    share in bins ``N/2 .. N-1`` (a real IF's negative
+    frequencies: I/Q images of targets below half
+    the maximum range, and those beyond it)
+``dc``
+    share in bin 0 (DC offset)
+``near_range``
+    share below ``near_range_m`` (coupling / leakage)
+``channels``
+    share per virtual channel ``[T, R]`` and per chip
+    pair (gains, delays, per-chip offsets)
+``chirps`` / ``doppler``
+    share per chirp loop ``[C]`` and per Doppler bin
+    (motion, phase noise)
+``frames``
+    share per frame ``[F]`` (movers, drift)
+``samples``
+    share per fast-time sample ``[N]`` (clipping,
+    chirp non-linearity at the ramp ends)
+``peaks``
+    strongest residual range bins with their range
+    [m] and share of the residual (missing scatterers)
 """
 from __future__ import annotations
 

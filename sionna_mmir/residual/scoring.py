@@ -46,7 +46,7 @@ def model_ra(ctx, mean, variance, n_noise: int = 2, seed: int = 0):
 
 def score(ctx, measured, mean, variance=None) -> dict:
     """Table 2 metrics of the model (mean + variance) against ``measured`` plus
-    ``residual_energy_db`` = 10 log10(|y - mean|^2 / |y|^2).
+    ``residual_energy_db = 10 log10(|y - mean|^2 / |y|^2)``.
 
     All arrays complex ``[F, T, R, C, N]`` in the capture's units; ``variance``
     per range bin in the same units squared (broadcastable), or None.

@@ -1,11 +1,15 @@
 """The LiDAR scaffold: from a noisy scan to the mesh the fitters get.
 
-``denoise``  MLS denoising of LiDAR-like meshes (feature preserving)
-``planes``   :func:`snap_planes` (planar regions onto fitted planes)
-``shading``  :func:`flat_shaded`, :func:`crease_shaded`, :func:`auto_shaded`
-             (no normals averaged across creases)
-``prepare``  :class:`ScaffoldOptions` and :func:`prepare_scaffold` (denoise ->
-             planes -> shading), the one chain every command uses
+``denoise``
+    MLS denoising of LiDAR-like meshes (feature preserving)
+``planes``
+    :func:`snap_planes` (planar regions onto fitted planes)
+``shading``
+    :func:`flat_shaded`, :func:`crease_shaded`, :func:`auto_shaded`
+    (no normals averaged across creases)
+``prepare``
+    :class:`ScaffoldOptions` and :func:`prepare_scaffold` (denoise ->
+    planes -> shading), the one chain every command uses
 
 NumPy / SciPy / trimesh only; nothing here touches Dr.Jit.
 """

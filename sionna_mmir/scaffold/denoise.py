@@ -467,21 +467,6 @@ def denoise_mesh(mesh: trimesh.Trimesh, radius: float = 0.05, crease_angle_deg: 
                  iterations: int = 2) -> trimesh.Trimesh:
     """Feature-preserving denoising: move every vertex onto its local plane.
 
-    ================  ====================================================
-    mesh              ``trimesh.Trimesh`` [m] (not modified)
-    radius            neighbourhood radius ``R`` [m], > 0; Gaussian
-                      weights of ``sigma = R / 2``.  Use 2.5-3.5 point
-                      spacings of the scan (default 5 cm: 1-2 cm scans)
-    crease_angle_deg  faces whose reference normals differ by more than
-                      this are on different planes [deg], in (0, 90]
-    iterations        number of passes (>= 1), each recomputing normals
-    returns           new ``trimesh.Trimesh`` (``process=False``): the same
-                      faces in the same order, denoised vertices,
-                      ``vertex_normals`` = fitted plane normals (unit),
-                      copies of ``face_attributes``, ``vertex_attributes``
-                      and ``metadata``
-    ================  ====================================================
-
     Method in the module docstring.  Left where they are: vertices with
     fewer than 3 usable faces (weight >= 0.001) within ``radius``
     (isolated triangles, a ``radius`` below the point spacing), vertices
@@ -492,10 +477,36 @@ def denoise_mesh(mesh: trimesh.Trimesh, radius: float = 0.05, crease_angle_deg: 
     is estimated from this mesh alone; :func:`denoise_meshes` shares it
     between the objects of a scene.
 
-    Raises :class:`~sionna_mmir.errors.InputValueError` when ``mesh`` is not
-    a ``trimesh.Trimesh``, has no faces or NaN/Inf vertices, or for a
-    ``radius`` that is not finite and > 0, a ``crease_angle_deg`` outside
-    (0, 90] or ``iterations`` that is not an integer >= 1.
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        the mesh [m] (not modified)
+    radius : float, optional
+        neighbourhood radius ``R`` [m], > 0; Gaussian
+        weights of ``sigma = R / 2``.  Use 2.5-3.5 point
+        spacings of the scan (default 5 cm: 1-2 cm scans)
+    crease_angle_deg : float, optional
+        faces whose reference normals differ by more than
+        this are on different planes [deg], in (0, 90]
+    iterations : int, optional
+        number of passes (>= 1), each recomputing normals
+
+    Returns
+    -------
+    trimesh.Trimesh
+        a new mesh (``process=False``): the same
+        faces in the same order, denoised vertices,
+        ``vertex_normals`` = fitted plane normals (unit),
+        copies of ``face_attributes``, ``vertex_attributes``
+        and ``metadata``
+
+    Raises
+    ------
+    InputValueError
+        ``mesh`` is not a ``trimesh.Trimesh``, has no faces or NaN/Inf
+        vertices, or a ``radius`` that is not finite and > 0, a
+        ``crease_angle_deg`` outside (0, 90] or ``iterations`` that is not
+        an integer >= 1.
     """
     r, angle, n_iter = _check(mesh, radius, crease_angle_deg, iterations)
     return _denoise([mesh], r, angle, n_iter)[0]
@@ -560,24 +571,33 @@ def auto_radius(meshes, spacings: float = 3.0) -> float:
 def denoise_meshes(meshes: dict, **kwargs) -> dict:
     """:func:`denoise_mesh` of every mesh of a ``dict`` name -> ``trimesh.Trimesh``.
 
-    ========  ============================================================
-    meshes    ``dict`` name -> ``trimesh.Trimesh`` [m] (e.g. the result of
-              :func:`sionna_mmir.benchmark_scenes.lidarize`)
-    kwargs    ``radius`` [m] (``None``: :func:`auto_radius`, 3 median edge
-              lengths), ``crease_angle_deg`` [deg], ``iterations``
-              (see :func:`denoise_mesh`), the same for every mesh
-    returns   ``dict`` name -> denoised ``trimesh.Trimesh``, same keys in
-              the same order (``{}`` for ``{}``)
-    ========  ============================================================
-
     Each mesh is fitted on its own samples (no neighbours from other
     objects).  The noise level is estimated per mesh but capped at 4x the
     rms pooled over all of them, so that an object made only of small
     facets (a pole, a bollard), which has no plane to measure it on, is
-    judged against the scene's noise.  Raises
-    :class:`~sionna_mmir.errors.InputValueError` when ``meshes`` is not a
-    ``dict``, for an unknown keyword, or for any error of
-    :func:`denoise_mesh` (the message names the object).
+    judged against the scene's noise.
+
+    Parameters
+    ----------
+    meshes : dict
+        name -> ``trimesh.Trimesh`` [m] (e.g. the result of
+        :func:`sionna_mmir.benchmark_scenes.lidarize`)
+    **kwargs
+        ``radius`` [m] (``None``: :func:`auto_radius`, 3 median edge
+        lengths), ``crease_angle_deg`` [deg], ``iterations``
+        (see :func:`denoise_mesh`), the same for every mesh
+
+    Returns
+    -------
+    dict
+        name -> denoised ``trimesh.Trimesh``, same keys in
+        the same order (``{}`` for ``{}``)
+
+    Raises
+    ------
+    InputValueError
+        ``meshes`` is not a ``dict``, an unknown keyword, or any error of
+        :func:`denoise_mesh` (the message names the object).
     """
     if not isinstance(meshes, dict):
         raise InputValueError(f"denoise_meshes: meshes must be a dict name -> trimesh.Trimesh, "

@@ -8,8 +8,7 @@ face-on (a car door, a façade) returns only a fraction of its specular power
 coherently (``exp(-(4 pi sigma / lambda)^2)`` of it, 0.2 at 0.4 mm).  Fitting
 one plane to the whole panel averages over thousands of samples instead; on
 the street and parking lot, larger MLS radii alone lifted the true-material
-correlation ceiling from 0.665 / 0.661 to 0.70-0.76 / 0.88-0.90
-(NOTES.md, session 9).
+correlation ceiling from 0.665 / 0.661 to 0.70-0.76 / 0.88-0.90.
 
 Algorithm (region growing with a smoothness constraint, Rabbani, van den
 Heuvel & Vosselman 2006, "Segmentation of point clouds using smoothness

@@ -6,7 +6,7 @@ and the renderer interpolates them across every triangle touching the
 crease: a strip of triangles whose shading normals lean by up to half the
 crease angle.  On the benchmark street (noise-free scan, true materials,
 depth 3) this took the RA correlation from 0.80 (flat) to 0.19; on its
-denoised scan from 0.67 to 0.18 (NOTES.md, session 7).  Flat shading --
+denoised scan from 0.67 to 0.18.  Flat shading --
 shading normal = geometric normal -- removes the artefact at the price of
 three vertices per face (per-vertex materials become per face corner).
 
@@ -121,7 +121,7 @@ def _creased(mesh, name, angle, planar):
 
 
 #: an object with at least this share of curved area is curved
-#: (:func:`auto_shaded`, :func:`sionna_mmir.scene.prepare_scaffold`)
+#: (:func:`auto_shaded`, :func:`sionna_mmir.scaffold.prepare_scaffold`)
 MIN_CURVED = 0.1
 
 

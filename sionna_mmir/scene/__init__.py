@@ -1,14 +1,21 @@
 """Differentiable radar scene: mesh input and the ``RadarScene`` Sionna subclass.
 
-``mesh_io``  read / validate PLY, OBJ or trimesh meshes, build ``mi.Mesh``
-``scene``    :class:`RadarScene` (subclass of ``sionna.rt.Scene``)
-``vertex_material``  :class:`VertexRadioMaterial`, the Sionna radio material
+``mesh_io``
+    read / validate PLY, OBJ or trimesh meshes, build ``mi.Mesh``
+``scene``
+    :class:`RadarScene` (subclass of ``sionna.rt.Scene``)
+``vertex_material``
+    :class:`VertexRadioMaterial`, the Sionna radio material
              holding an object's per-vertex ITU-R P.2040 parameters
-``load``     :func:`load_scene` (meshes, Sionna scenes, material PLYs)
-``edges``    diffracting edges (boundary / crease) for free-space diffraction
-``sionna_import``  Sionna RT scenes / Mitsuba XML -> ``RadarScene`` (ITU
+``load``
+    :func:`load_scene` (meshes, Sionna scenes, material PLYs)
+``edges``
+    diffracting edges (boundary / crease) for free-space diffraction
+``sionna_import``
+    Sionna RT scenes / Mitsuba XML -> ``RadarScene`` (ITU
              materials at 77 GHz: the out-of-band policy)
-``ply_export``  ``RadarScene`` <-> PLY with per-vertex materials
+``ply_export``
+    ``RadarScene`` <-> PLY with per-vertex materials
 
 Importing :mod:`sionna_mmir.scene.scene` initialises the Mitsuba backend;
 this package imports it lazily so that ``mesh_io`` stays NumPy-only.

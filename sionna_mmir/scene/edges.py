@@ -59,17 +59,24 @@ CREASE = 1
 class EdgeSet:
     """Diffracting edges of a mesh (``E`` edges; all positions in metres).
 
-    =========  ========================================================
-    p0, p1     ``float64 [E, 3]`` endpoints (``v0 < v1``)
-    v0, v1     ``int64 [E]`` endpoint vertex ids
-    kind       ``int8 [E]``: 0 boundary (one face), 1 crease / non-manifold
-    faces      ``int64 [E, 2]`` adjacent face ids (``-1`` for none)
-    a0, a1     ``int64 [E]`` apex (opposite) vertex ids in faces 0 / 1
-               (``a1 == a0`` for boundary edges)
-    apex0/1    ``float64 [E, 3]`` positions of ``a0`` / ``a1``
-    dihedral   ``float64 [E]`` angle between adjacent face normals [deg]
-               (0 for boundary edges, 180 for non-manifold ones)
-    =========  ========================================================
+    Parameters
+    ----------
+    p0, p1 : numpy.ndarray
+        ``float64 [E, 3]`` endpoints (``v0 < v1``)
+    v0, v1 : numpy.ndarray
+        ``int64 [E]`` endpoint vertex ids
+    kind : numpy.ndarray
+        ``int8 [E]``: 0 boundary (one face), 1 crease / non-manifold
+    faces : numpy.ndarray
+        ``int64 [E, 2]`` adjacent face ids (``-1`` for none)
+    a0, a1 : numpy.ndarray
+        ``int64 [E]`` apex (opposite) vertex ids in faces 0 / 1
+        (``a1 == a0`` for boundary edges)
+    apex0, apex1 : numpy.ndarray
+        ``float64 [E, 3]`` positions of ``a0`` / ``a1``
+    dihedral : numpy.ndarray
+        ``float64 [E]`` angle between adjacent face normals [deg]
+        (0 for boundary edges, 180 for non-manifold ones)
     """
 
     p0: np.ndarray
@@ -120,17 +127,27 @@ def find_diffracting_edges(vertices, faces, crease_angle_deg: float = 60.0,
                            min_length: float = 0.0) -> EdgeSet:
     """Boundary and crease edges of a triangle mesh (see the module docstring).
 
-    ================  ====================================================
-    vertices          ``[Nv, 3]`` positions [m]
-    faces             ``[Nf, 3]`` vertex indices
-    crease_angle_deg  keep interior edges whose face normals differ by more
-                      than this [deg] (edge suppression of LiDAR noise)
-    min_length        drop edges shorter than this [m]
-    returns           :class:`EdgeSet`
-    ================  ====================================================
+    Parameters
+    ----------
+    vertices : array_like
+        ``[Nv, 3]`` positions [m]
+    faces : array_like
+        ``[Nf, 3]`` vertex indices
+    crease_angle_deg : float, optional
+        keep interior edges whose face normals differ by more
+        than this [deg] (edge suppression of LiDAR noise)
+    min_length : float, optional
+        drop edges shorter than this [m]
 
-    Raises :class:`~sionna_mmir.errors.InputValueError` for bad shapes,
-    NaN/Inf vertices, out-of-range indices or a negative threshold.
+    Returns
+    -------
+    EdgeSet
+
+    Raises
+    ------
+    InputValueError
+        Bad shapes, NaN/Inf vertices, out-of-range indices or a negative
+        threshold.
     """
     v, f = _validate(vertices, faces)
     if not np.isfinite(crease_angle_deg) or not 0.0 <= crease_angle_deg <= 180.0:
@@ -216,15 +233,27 @@ class EdgeIndex:
     def query(self, points, radius: float, max_edges: int = 4, return_distance: bool = False):
         """Up to ``max_edges`` edges within ``radius`` of each point, nearest first.
 
-        ===============  ====================================================
-        points           ``[N, 3]`` query points [m]
-        radius           search radius [m] (> 0)
-        max_edges        ``K``, the number of columns returned
-        returns          ``(idx [N, K] int64, valid [N, K] bool)``, plus
-                         ``dist [N, K]`` (inf where invalid) with
-                         ``return_distance``; padding has ``idx == 0`` and
-                         ``valid == False`` (safe for gathers)
-        ===============  ====================================================
+        Parameters
+        ----------
+        points : array_like
+            ``[N, 3]`` query points [m]
+        radius : float
+            search radius [m] (> 0)
+        max_edges : int, optional
+            ``K``, the number of columns returned
+        return_distance : bool, optional
+            also return the distances
+
+        Returns
+        -------
+        idx : numpy.ndarray
+            ``[N, K]`` int64 edge indices; padding has ``idx == 0``
+            (safe for gathers)
+        valid : numpy.ndarray
+            ``[N, K]`` bool; ``False`` for padding
+        dist : numpy.ndarray
+            ``[N, K]`` distances [m] (inf where invalid); only with
+            ``return_distance``
         """
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:

@@ -25,34 +25,47 @@ def load_scene(meshes, frequency: float = DEFAULT_FREQUENCY_HZ, materials: dict 
                allow_out_of_band: bool | None = None, **options) -> RadarScene:
     """Load triangle meshes, a Sionna scene or a material PLY into a :class:`RadarScene`.
 
-    =================  ===================================================
-    meshes             PLY/OBJ path, ``trimesh.Trimesh``, or ``dict`` name ->
-                       path / trimesh (a single mesh is named ``"mesh"``);
-                       a ``sionna.rt.Scene``, a Sionna / Mitsuba XML path
-                       (e.g. ``sionna.rt.scene.simple_street_canyon``), see
-                       :func:`~sionna_mmir.scene.sionna_import.load_sionna_scene`;
-                       or a PLY written by
-                       :func:`~sionna_mmir.scene.ply_export.save_scene_ply`
-                       (per-vertex materials restored exactly)
-    frequency          carrier frequency [Hz], default 77e9
-    materials          ``dict`` name -> ITU-R P.2040 material (default
-                       ``"concrete"`` for every object; Sionna scenes: see
-                       ``load_sionna_scene``)
-    radar              optional ``RadarConfig`` (initial pose)
-    drop_degenerate    remove triangles < 1e-12 m^2 instead of raising
-    allow_out_of_band  use a material outside its ITU-R P.2040 frequency
-                       range (extrapolated).  ``None`` (default): meshes
-                       raise ``ConfigError`` naming the material and its
-                       bands; Sionna scenes extrapolate with an
-                       ``OutOfBandMaterialWarning`` (their built-in scenes
-                       use brick and marble, tabulated to 40 / 60 GHz)
-    options            Sionna sources only: ``shading``, ``merge_shapes``
-    returns            :class:`RadarScene`
-    =================  ===================================================
+    Parameters
+    ----------
+    meshes : str or os.PathLike or trimesh.Trimesh or dict or sionna.rt.Scene
+        PLY/OBJ path, ``trimesh.Trimesh``, or ``dict`` name ->
+        path / trimesh (a single mesh is named ``"mesh"``);
+        a ``sionna.rt.Scene``, a Sionna / Mitsuba XML path
+        (e.g. ``sionna.rt.scene.simple_street_canyon``), see
+        :func:`~sionna_mmir.scene.sionna_import.load_sionna_scene`;
+        or a PLY written by
+        :func:`~sionna_mmir.scene.ply_export.save_scene_ply`
+        (per-vertex materials restored exactly)
+    frequency : float, optional
+        carrier frequency [Hz], default 77e9
+    materials : dict, optional
+        name -> ITU-R P.2040 material (default
+        ``"concrete"`` for every object; Sionna scenes: see
+        ``load_sionna_scene``)
+    radar : RadarConfig, optional
+        the radar (its pose is the scene's initial radar pose)
+    drop_degenerate : bool, optional
+        remove triangles < 1e-12 m^2 instead of raising
+    allow_out_of_band : bool, optional
+        use a material outside its ITU-R P.2040 frequency
+        range (extrapolated).  ``None`` (default): meshes
+        raise ``ConfigError`` naming the material and its
+        bands; Sionna scenes extrapolate with an
+        ``OutOfBandMaterialWarning`` (their built-in scenes
+        use brick and marble, tabulated to 40 / 60 GHz)
+    **options
+        Sionna sources only: ``shading``, ``merge_shapes``
 
-    Raises ``InputValueError`` for bad meshes (see
-    :func:`~sionna_mmir.scene.mesh_io.read_mesh`) and ``ConfigError`` for
-    unknown materials or a non-positive frequency.
+    Returns
+    -------
+    RadarScene
+
+    Raises
+    ------
+    InputValueError
+        Bad meshes (see :func:`~sionna_mmir.scene.mesh_io.read_mesh`).
+    ConfigError
+        Unknown materials or a non-positive frequency.
     """
     if sionna_import.is_sionna_source(meshes):
         return sionna_import.load_sionna_scene(

@@ -21,12 +21,16 @@ DEGENERATE_AREA_M2 = 1e-12
 class TriMeshData:
     """A validated triangle mesh.
 
-    ========  ===================================================
-    source    description of where the mesh came from (file path)
-    vertices  ``np.ndarray`` float64 (Nv, 3), positions [m]
-    faces     ``np.ndarray`` int64 (Nf, 3), vertex indices
-    normals   ``np.ndarray`` float64 (Nv, 3), unit vertex normals
-    ========  ===================================================
+    Parameters
+    ----------
+    source : str
+        description of where the mesh came from (file path)
+    vertices : numpy.ndarray
+        float64 (Nv, 3), positions [m]
+    faces : numpy.ndarray
+        int64 (Nf, 3), vertex indices
+    normals : numpy.ndarray
+        float64 (Nv, 3), unit vertex normals
     """
 
     source: str
@@ -70,25 +74,33 @@ def read_mesh(mesh, source: str | None = None,
               drop_degenerate: bool = False) -> TriMeshData:
     """Read and validate a triangle mesh.
 
-    ===============  ====================================================
-    mesh             path of a PLY / OBJ file (str or ``os.PathLike``)
-                     or a ``trimesh.Trimesh``
-    source           name used in error messages (default: the path, or
-                     ``"<trimesh>"``)
-    drop_degenerate  if True, triangles with area < 1e-12 m^2 are removed
-                     instead of raising
-    returns          :class:`TriMeshData`
-    ===============  ====================================================
-
     Shading normals: the mesh's own vertex normals when it has them (a
     PLY's ``nx ny nz``, a ``Trimesh`` built with ``vertex_normals=``, e.g. by
     :func:`~sionna_mmir.scaffold.denoise.denoise_mesh`), else trimesh's
     face-averaged normals.
 
-    Raises :class:`~sionna_mmir.errors.InputValueError` naming ``source`` for:
-    an unreadable file, no faces, NaN/Inf vertices, NaN/Inf or zero given
-    normals, face indices out of range and (unless ``drop_degenerate``)
-    degenerate triangles.
+    Parameters
+    ----------
+    mesh : str or os.PathLike or trimesh.Trimesh
+        path of a PLY / OBJ file (str or ``os.PathLike``)
+        or a ``trimesh.Trimesh``
+    source : str, optional
+        name used in error messages (default: the path, or
+        ``"<trimesh>"``)
+    drop_degenerate : bool, optional
+        if True, triangles with area < 1e-12 m^2 are removed
+        instead of raising
+
+    Returns
+    -------
+    TriMeshData
+
+    Raises
+    ------
+    InputValueError
+        Naming ``source``: an unreadable file, no faces, NaN/Inf vertices,
+        NaN/Inf or zero given normals, face indices out of range and
+        (unless ``drop_degenerate``) degenerate triangles.
     """
     import trimesh
 
@@ -169,15 +181,22 @@ def _given_normals(loaded, n_vertices: int, faces: np.ndarray, source: str):
 def to_mitsuba_mesh(data: TriMeshData, name: str, bsdf=None):
     """Build a ``mi.Mesh`` from validated data.
 
-    ====  ====================================================
-    data  :class:`TriMeshData`
-    name  Mitsuba shape id (also the Sionna object name)
-    bsdf  optional Mitsuba BSDF (e.g. a Sionna radio material)
-    ====  ====================================================
-
     The mesh has no Mitsuba vertex normals (flat shading normals); keep
     shading normals in a separate attribute, Mitsuba recomputes
     ``vertex_normals`` whenever positions change.
+
+    Parameters
+    ----------
+    data : TriMeshData
+        :class:`TriMeshData`
+    name : str
+        Mitsuba shape id (also the Sionna object name)
+    bsdf : mi.BSDF, optional
+        Mitsuba BSDF (e.g. a Sionna radio material)
+
+    Returns
+    -------
+    mi.Mesh
     """
     import mitsuba as mi
 

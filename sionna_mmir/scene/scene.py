@@ -100,16 +100,19 @@ class MeshObject:
 class RadarScene(Scene):
     """A ``sionna.rt.Scene`` with per-vertex differentiable radar parameters.
 
-    ==========  ==========================================================
-    mi_scene    Mitsuba scene holding one ``mi.Mesh`` per object
-    objects     ``dict`` name -> :class:`MeshObject` (kept as ``mesh_objects``;
-                Sionna's ``objects`` holds the ``SceneObject``s)
-    frequency   carrier frequency [Hz] (default 77 GHz)
-    radar       optional :class:`~sionna_mmir.radar.config.RadarConfig`
-                (its ``position`` [m] / ``orientation`` [rad] start the pose)
-    ==========  ==========================================================
-
     Use :func:`load_scene` rather than this constructor.
+
+    Parameters
+    ----------
+    mi_scene : mi.Scene
+        Mitsuba scene holding one ``mi.Mesh`` per object
+    objects : dict
+        name -> :class:`MeshObject` (kept as ``mesh_objects``;
+        Sionna's ``objects`` holds the ``SceneObject`` instances)
+    frequency : float, optional
+        carrier frequency [Hz] (default 77 GHz)
+    radar : RadarConfig, optional
+        its ``position`` [m] / ``orientation`` [rad] start the pose
     """
 
     def __init__(self, mi_scene: mi.Scene, objects: dict, frequency: float = DEFAULT_FREQUENCY_HZ,
@@ -201,12 +204,15 @@ class RadarScene(Scene):
 class ObjectData:
     """One object to build: validated mesh, material label, per-vertex materials.
 
-    ================  ====================================================
-    mesh              :class:`~sionna_mmir.scene.mesh_io.TriMeshData`
-    material          label (an ITU-R P.2040 class or a free name)
-    vertex_materials  ``np.ndarray`` [Nv, 6] (order
-                      :data:`~sionna_mmir.radio_materials.VERTEX_PARAMETER_NAMES`)
-    ================  ====================================================
+    Parameters
+    ----------
+    mesh : TriMeshData
+        :class:`~sionna_mmir.scene.mesh_io.TriMeshData`
+    material : str
+        label (an ITU-R P.2040 class or a free name)
+    vertex_materials : numpy.ndarray
+        ``[Nv, 6]`` (order
+        :data:`~sionna_mmir.radio_materials.VERTEX_PARAMETER_NAMES`)
     """
 
     mesh: TriMeshData

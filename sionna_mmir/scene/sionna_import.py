@@ -99,7 +99,7 @@ from .mesh_io import TriMeshData, read_mesh
 #: surface defaults for Sionna's P.2040-4 types absent from the package's table
 SURFACE_ANALOGUES = {"asphalt_concrete": "concrete", "vinyl_tile": "floorboard",
                      "carpet_tile": "ceiling_board", "clear_acrylic": "glass"}
-#: roughness defaults of plain (non-ITU) Sionna ``RadioMaterial``s
+#: roughness defaults of plain (non-ITU) Sionna ``RadioMaterial`` instances
 GENERIC_SURFACE = "concrete"
 SHADINGS = ("sionna", "shared", "flat", "auto")
 
@@ -144,21 +144,32 @@ def load_sionna_scene(source, frequency: float = 77e9, materials: dict | None = 
                       merge_shapes: bool = True):
     """Convert a Sionna scene (object or XML path) into a :class:`RadarScene`.
 
-    =================  ====================================================
-    source             ``sionna.rt.Scene`` or XML path
-    frequency          carrier frequency [Hz]; materials are evaluated here
-    materials          ``dict`` object or Sionna material name -> ITU class
-                       name or six per-vertex values (see module docstring)
-    radar              ``RadarConfig``; default: from the scene's transmitter
-                       if it has exactly one, else none
-    drop_degenerate    drop triangles < 1e-12 m^2 instead of raising
-    allow_out_of_band  ``None`` | ``True`` | ``False``: the 77 GHz policy
-                       (module docstring)
-    shading            ``"sionna"`` | ``"shared"`` | ``"flat"`` | ``"auto"``
-    merge_shapes       XML paths: Sionna's ``merge_shapes`` (default True, as
-                       ``sionna.rt.load_scene``)
-    returns            :class:`~sionna_mmir.scene.scene.RadarScene`
-    =================  ====================================================
+    Parameters
+    ----------
+    source : sionna.rt.Scene or str
+        ``sionna.rt.Scene`` or XML path
+    frequency : float, optional
+        carrier frequency [Hz]; materials are evaluated here
+    materials : dict, optional
+        ``dict`` object or Sionna material name -> ITU class
+        name or six per-vertex values (see module docstring)
+    radar : RadarConfig, optional
+        default: from the scene's transmitter
+        if it has exactly one, else none
+    drop_degenerate : bool, optional
+        drop triangles < 1e-12 m^2 instead of raising
+    allow_out_of_band : bool, optional
+        ``None`` | ``True`` | ``False``: the 77 GHz policy
+        (module docstring)
+    shading : {"sionna", "shared", "flat", "auto"}, optional
+        shading normals of the imported meshes
+    merge_shapes : bool, optional
+        XML paths: Sionna's ``merge_shapes`` (default True, as
+        ``sionna.rt.load_scene``)
+
+    Returns
+    -------
+    RadarScene
     """
     from .scene import ObjectData, scene_from_objects
 
@@ -276,15 +287,24 @@ def material_parameters(mat, frequency: float = 77e9, allow_out_of_band: bool | 
                         where: str = "material") -> tuple[str, np.ndarray]:
     """``(label, [6] per-vertex values)`` of a Sionna radio material at ``frequency``.
 
-    =================  ===================================================
-    mat                ``ITURadioMaterial`` or ``RadioMaterial``
-    frequency          [Hz]
-    allow_out_of_band  the 77 GHz policy (module docstring)
-    where              prefix of messages (object / file)
-    returns            label (ITU type or material name), ``np.ndarray``
-                       float64 (6,): ``[eps_real, eps_imag, sigma_h [m],
-                       l_c [m], tau, thickness [m]]``
-    =================  ===================================================
+    Parameters
+    ----------
+    mat : sionna.rt.RadioMaterial
+        ``ITURadioMaterial`` or ``RadioMaterial``
+    frequency : float, optional
+        frequency [Hz]
+    allow_out_of_band : bool, optional
+        the 77 GHz policy (module docstring)
+    where : str, optional
+        prefix of messages (object / file)
+
+    Returns
+    -------
+    label : str
+        ITU type or material name
+    values : numpy.ndarray
+        float64 (6,): ``[eps_real, eps_imag, sigma_h [m],
+        l_c [m], tau, thickness [m]]``
     """
     from sionna.rt import ITURadioMaterial, RadioMaterial
 

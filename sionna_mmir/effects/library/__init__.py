@@ -1,24 +1,37 @@
 """The effects library: one effect per module; :data:`LIBRARY` maps names to classes.
 
-=====================  =======  ==============================================
-name                   stage    what the base model lacks
-=====================  =======  ==============================================
-``missing_scatterer``  scene    a static point scatterer (repeatable)
-``moving_scatterer``   scene    a moving point target, per-frame state
-``multipath_ghost``    scene    the strongest scatterer seen via a flat surface
-``coupling``           RF       Tx->Rx leakage at short delays
-``channel_gain``       RF       per-Tx and per-Rx complex gain
-``delay_offset``       RF       per-Tx and per-Rx delay
-``frequency_offset``   RF       per-chip beat-frequency offset
-``chirp_nonlinearity`` RF       chirp instantaneous-frequency error
-``ego_motion``         RF       radar radial velocity over slow time
-``phase_noise``        RF       LO phase-noise skirt (variance)
-``if_filter``          IF       high-pass / anti-alias filter response
-``noise_floor``        IF       coloured receiver noise (variance)
-``dc_offset``          ADC      per-Rx DC
-``iq_imbalance``       ADC      per-Rx I/Q gain and phase error
-``adc_clipping``       ADC      I/Q saturation
-=====================  =======  ==============================================
+Each effect, its stage and what the base model lacks:
+
+``missing_scatterer``
+    scene: a static point scatterer (repeatable)
+``moving_scatterer``
+    scene: a moving point target, per-frame state
+``multipath_ghost``
+    scene: the strongest scatterer seen via a flat surface
+``coupling``
+    RF: Tx->Rx leakage at short delays
+``channel_gain``
+    RF: per-Tx and per-Rx complex gain
+``delay_offset``
+    RF: per-Tx and per-Rx delay
+``frequency_offset``
+    RF: per-chip beat-frequency offset
+``chirp_nonlinearity``
+    RF: chirp instantaneous-frequency error
+``ego_motion``
+    RF: radar radial velocity over slow time
+``phase_noise``
+    RF: LO phase-noise skirt (variance)
+``if_filter``
+    IF: high-pass / anti-alias filter response
+``noise_floor``
+    IF: coloured receiver noise (variance)
+``dc_offset``
+    ADC: per-Rx DC
+``iq_imbalance``
+    ADC: per-Rx I/Q gain and phase error
+``adc_clipping``
+    ADC: I/Q saturation
 """
 from .adc_clipping import ADCClipping
 from .channel_gain import ChannelGain

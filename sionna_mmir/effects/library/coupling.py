@@ -173,11 +173,14 @@ def factorise(h, ctx, weight=None, n_iter: int = 50):
 class Coupling(Effect):
     """Tx -> Rx leakage: ``K`` short-delay paths, separable channel factors.
 
-    ================  ========================================================
-    ``num_paths``     ``K``, number of leakage delays (default 2)
-    ``min_range``     smallest equivalent range ``c tau / 2`` [m] (0.02)
-    ``max_range``     largest equivalent range [m] (0.5)
-    ================  ========================================================
+    Parameters
+    ----------
+    num_paths : int, optional
+        ``K``, number of leakage delays (default 2)
+    min_range : float, optional
+        smallest equivalent range ``c tau / 2`` [m] (0.02)
+    max_range : float, optional
+        largest equivalent range [m] (0.5)
     """
 
     name = "coupling"

@@ -243,12 +243,15 @@ def _component(x, d, dp, shape):
 class EgoMotion(Effect):
     """Radar moving towards the scene at radial velocity ``v`` (1 parameter).
 
-    ==================  ======================================================
-    ``max_speed``       bound of ``|v|`` and of the init search [m/s]
-    ``angle_aware``     Doppler ``cos(theta)`` per dominant direction and per
-                        range bin (default), or ``cos(theta) = 1`` everywhere
-    ``max_directions``  dominant scatterers moved as a whole (default 6)
-    ==================  ======================================================
+    Parameters
+    ----------
+    max_speed : float, optional
+        bound of ``|v|`` and of the init search [m/s]
+    angle_aware : bool, optional
+        Doppler ``cos(theta)`` per dominant direction and per
+        range bin (default), or ``cos(theta) = 1`` everywhere
+    max_directions : int, optional
+        dominant scatterers moved as a whole (default 6)
     """
 
     name = "ego_motion"

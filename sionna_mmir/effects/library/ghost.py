@@ -122,18 +122,22 @@ def target_amplitude(x, ctx, p):
 class MultipathGhost(Effect):
     """Multipath ghost of the model's strongest scatterer via a flat surface (3 parameters).
 
-    ================  ========================================================
-    ``plane``         ``(point [3], normal [3])`` [m] in the radar frame, e.g.
-                      ``((0, 0, -h), (0, 0, 1))`` for a floor ``h`` below; None:
-                      search floors, ceilings and side walls in init
-    ``distances``     ``(min, max)`` plane distances from the radar searched
-                      when ``plane`` is None [m]
-    ``max_offset``    bound of the plane offset refinement [m]
-    ``min_range``     smallest target range considered [m]
-    ================  ========================================================
-
     The target and (default) the plane chosen at init are kept on the
     instance (``target_``, ``plane_``), so use one instance per model.
+
+    Parameters
+    ----------
+    plane : tuple, optional
+        ``(point [3], normal [3])`` [m] in the radar frame, e.g.
+        ``((0, 0, -h), (0, 0, 1))`` for a floor ``h`` below; None:
+        search floors, ceilings and side walls in init
+    distances : tuple, optional
+        ``(min, max)`` plane distances from the radar searched
+        when ``plane`` is None [m]
+    max_offset : float, optional
+        bound of the plane offset refinement [m]
+    min_range : float, optional
+        smallest target range considered [m]
     """
 
     name = "multipath_ghost"

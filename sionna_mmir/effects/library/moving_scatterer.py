@@ -208,13 +208,18 @@ def track_init(residual, ctx, min_range, max_range, max_speed, az_limit=80.0):
 class MovingScatterer(Effect):
     """Moving point target with a per-frame state (``5 F`` parameters).
 
-    ================  ========================================================
-    ``min_range``     smallest range [m] searched at init
-    ``max_range``     largest range [m] (None: 95 % of the radar's max range)
-    ``max_speed``     speed limit [m/s] of the tracker and bound of ``v_f``
-    ``range_margin``  ``r_f`` may move this many range bins from its init
-    ``az_limit``      azimuth search range ``+-az_limit`` [deg]
-    ================  ========================================================
+    Parameters
+    ----------
+    min_range : float, optional
+        smallest range [m] searched at init
+    max_range : float, optional
+        largest range [m] (None: 95 % of the radar's max range)
+    max_speed : float, optional
+        speed limit [m/s] of the tracker and bound of ``v_f``
+    range_margin : float, optional
+        ``r_f`` may move this many range bins from its init
+    az_limit : float, optional
+        azimuth search range ``+-az_limit`` [deg]
     """
 
     name = "moving_scatterer"

@@ -265,13 +265,17 @@ def check_range_limits(cls_name, min_range, max_range):
 class MissingScatterer(Effect):
     """A static point scatterer missing from the scene (4 or 5 parameters).
 
-    =================  =======================================================
-    ``min_range``      smallest range [m] searched at init (skips DC/coupling)
-    ``max_range``      largest range [m] searched (None: 95 % of max range)
-    ``range_margin``   the fitted range may move this many range bins from init
-    ``fit_elevation``  None: fit ``el`` when the array has an elevation
-                       aperture; False: ``el = 0``; True: always
-    =================  =======================================================
+    Parameters
+    ----------
+    min_range : float, optional
+        smallest range [m] searched at init (skips DC/coupling)
+    max_range : float, optional
+        largest range [m] searched (None: 95 % of max range)
+    range_margin : float, optional
+        the fitted range may move this many range bins from init
+    fit_elevation : bool, optional
+        None: fit ``el`` when the array has an elevation
+        aperture; False: ``el = 0``; True: always
     """
 
     name = "missing_scatterer"

@@ -6,20 +6,22 @@ into per-object ADC components ``B_o`` (:class:`~sionna_mmir.effects.scene_basis
 a sensor effect changes every object alike -- which is what lets the
 cross-validated ranking tell them apart.
 
-=================  ========================================================
-``object_gain``    complex gain per object (reflectivity, material, size;
-                   phase centre along the line of sight to a fraction of a
-                   wavelength): ``B_o <- exp(a_o + j phi_o) B_o``
-``object_delay``   range offset per object (a mesh placed off along the line
-                   of sight): ``B_o <- B_o exp(j 2 pi (f0 + S t_k - f_c) 2 dr_o / c)``
-``pose_offset``    the radar pose against the mesh frame (LiDAR-to-radar
-                   alignment): translation ``d`` and small rotation ``w``
-                   lengthen every path of object ``o`` by
-                   ``-u_o . (2 d + w x (e_t + e_r))`` (:meth:`SceneBasis.pose_delay_matrix`)
-``object_pattern`` per-Tx x per-Rx complex gain of each strong object (its
-                   aspect pattern across the aperture: near-field shape and
-                   phase-centre details the mesh misses)
-=================  ========================================================
+``object_gain``
+    complex gain per object (reflectivity, material, size; phase centre
+    along the line of sight to a fraction of a wavelength):
+    ``B_o <- exp(a_o + j phi_o) B_o``
+``object_delay``
+    range offset per object (a mesh placed off along the line of sight):
+    ``B_o <- B_o exp(j 2 pi (f0 + S t_k - f_c) 2 dr_o / c)``
+``pose_offset``
+    the radar pose against the mesh frame (LiDAR-to-radar alignment):
+    translation ``d`` and small rotation ``w`` lengthen every path of
+    object ``o`` by ``-u_o . (2 d + w x (e_t + e_r))``
+    (:meth:`~sionna_mmir.effects.scene_basis.SceneBasis.pose_delay_matrix`)
+``object_pattern``
+    per-Tx x per-Rx complex gain of each strong object (its aspect pattern
+    across the aperture: near-field shape and phase-centre details the mesh
+    misses)
 
 Delays enter as ``exp(j 2 pi (f0 + S t_k) dtau)`` with the common carrier
 phase ``2 pi f_c mean(dtau_o)`` of each object left out (the object's gain

@@ -2,7 +2,7 @@
 
 The remaining ``1 - eta`` of the energy, distributed by the mmIR BSDF ``f``
 (paper eqs. 5-7, :mod:`sionna_mmir.bsdf.mmwave`, energy gate from the P.2040
-slab and the path's s/p power fractions), is rendered with power
+slab and the path's s/p power fractions), is rendered with power::
 
     P_sc = (lambda / 4 pi)^2 (1 - eta) f c_t |E|^2 c_in / (L0^2 ...) / (N p_A)
 
