@@ -528,3 +528,31 @@ def coloradar_range_fft(adc, radar: RadarConfig, calib_dir, sensor: str = "casca
     coupling = read_coupling_calib(path)
     spec, _ = range_fft(x, radar, window="rect")
     return subtract_coupling(spec, coupling)
+
+
+def coloradar_pose(calib_dir, sensor: str = "cascade"):
+    """The sensor's pose from ``<calib_dir>/transforms/base_to_<sensor>.txt``.
+
+    Read as the radar's pose in the frame of the run's meshes (the base
+    frame), in the package's radar convention (``+x`` boresight, ``+y``
+    left, ``+z`` up).
+
+    Returns
+    -------
+    tuple
+        ``(position [3] m, orientation (yaw, pitch, roll) [rad])``, or
+        ``None`` when the file is absent.
+    """
+    sensor = _check_sensor(sensor)
+    path = os.path.join(os.fspath(calib_dir), "transforms", f"base_to_{sensor}.txt")
+    if not os.path.exists(path):
+        return None
+    t, q = read_transform(path)
+    x, y, z, w = q / np.linalg.norm(q)
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    yaw = float(np.arctan2(R[1, 0], R[0, 0]))
+    pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
+    roll = float(np.arctan2(R[2, 1], R[2, 2]))
+    return tuple(float(v) for v in t), (yaw, pitch, roll)

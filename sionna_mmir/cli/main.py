@@ -13,12 +13,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import (bench, convert, dataset, demo, fit, info, occupancy, ra, render, residual,
-               synth)
+from . import (bench, convert, dataset, demo, fit, info, loop, occupancy, ra, render,
+               residual, synth)
 from .boundary import EXIT_BAD_INPUT, error_boundary
 
 #: command modules in the order ``--help`` lists them
-COMMANDS = (demo, info, convert, ra, synth, render, fit, bench, residual, dataset, occupancy)
+COMMANDS = (demo, info, convert, ra, synth, render, fit, bench, residual, loop, dataset,
+            occupancy)
 
 __all__ = ["EXIT_BAD_INPUT", "build_parser", "main"]
 

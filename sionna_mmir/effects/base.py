@@ -83,6 +83,15 @@ class Effect:
     kind = "mean"
     stage = 1
     description = ""
+    #: applying it commutes with averaging over chirp loops and its parameters
+    #: mean the same on averaged data (a static, linear effect); the residual
+    #: loop scores such candidates on chirp-averaged data
+    chirp_static = True
+
+    @property
+    def scene_side(self) -> bool:
+        """Whether a better scene explains it (stage 0), not the sensor."""
+        return self.stage == 0
 
     def param_specs(self, ctx, model: np.ndarray, residual: np.ndarray) -> dict:
         """Parameter blocks with data-driven initial values.

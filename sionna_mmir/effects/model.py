@@ -123,6 +123,8 @@ class EffectModel:
         if effect.stage == 0:
             h = self.channel_response(keep, current=full)
             model, residual = model / h, residual / h
+        if effect.kind == "basis" and self.ctx.basis is not None:
+            self.ctx.basis.current_shares = self.component_shares()
         specs = effect.param_specs(self.ctx, model, residual)
         comp = Component(effect=effect, specs=specs,
                          values={k: s.init.copy() for k, s in specs.items()})
@@ -169,6 +171,46 @@ class EffectModel:
         with dr.suspend_grad():
             return ops.to_numpy(self._base(self._tensors(), order))
 
+    def chirp_averaged(self) -> "EffectModel":
+        """This model on the data averaged over chirp loops (``C = 1``).
+
+        Every component must be :attr:`~.base.Effect.chirp_static` (applying it
+        commutes with the average), so its values carry over unchanged; the
+        normalisation (``scale``, ``base_gain``) is kept, so values fitted on
+        the averaged model mean the same on this one.  The white floor is
+        re-estimated (averaging divides it by ``C``).  Returns ``self`` when
+        ``C == 1``.
+        """
+        C = self.ctx.shape[3]
+        if C == 1:
+            return self
+        moving = [c.effect.name for c in self.components if not c.effect.chirp_static]
+        if moving:
+            raise InputValueError(f"chirp_averaged: {moving} change from chirp to chirp")
+        basis = self.ctx.basis
+        if basis is not None:
+            basis = dataclasses.replace(basis, adc=basis.adc.mean(axis=3, keepdims=True))
+            basis.current_shares = getattr(self.ctx.basis, "current_shares", None)
+        ctx = dataclasses.replace(self.ctx, radar=self.ctx.radar.replace(num_chirps=1),
+                                  basis=basis)
+        new = object.__new__(EffectModel)
+        new.__dict__.update(self.__dict__)
+        new.ctx = ctx
+        new.y = self.y.mean(axis=3, keepdims=True)
+        new.b = self.b.mean(axis=3, keepdims=True)
+        new.Y_numpy = np.fft.fft(new.y, axis=-1, norm="ortho")
+        new.Y = ops.tensor(new.Y_numpy)
+        new.b_t = ops.tensor(new.b)
+        if basis is not None:
+            k = self.base_gain / self.scale
+            new.basis_t = [ops.tensor(np.broadcast_to(B[None], ctx.shape) * k) for B in basis.adc]
+        new.nuisance = _copy_comp(self.nuisance)
+        new.components = [_copy_comp(c) for c in self.components]
+        r = new.y - new.mean_variance_numpy()[0]
+        new.nuisance.values["log_noise"] = np.array([np.log(max(np.mean(np.abs(r) ** 2),
+                                                                 1e-12))])
+        return new
+
     def remove(self, comp: Component):
         self.components.remove(comp)
 
@@ -181,27 +223,57 @@ class EffectModel:
         return new
 
     # ------------------------------------------------------------- forward
-    def _base(self, tens: dict, order):
-        """The base before the sensor chain: ``b``, or the sum of the per-object
-        components after the scene-side (``kind = "basis"``) effects."""
-        scene = [i for i in order if self.components[i].effect.kind == "basis"]
-        if not scene or self.basis_t is None:
-            return self.b_t
+    def _components(self, tens: dict, order):
+        """Per-object base components after the scene-side effects (list of pairs)."""
         B = list(self.basis_t)
-        for i in scene:
-            B = self.components[i].effect.apply_basis(B, _block(tens, i, self.components[i]),
-                                                      self.ctx)
+        for i in order:
+            if self.components[i].effect.kind == "basis":
+                B = self.components[i].effect.apply_basis(
+                    B, _block(tens, i, self.components[i]), self.ctx)
+        return B
+
+    def _base(self, tens: dict, order, frozen=None):
+        """The base before the sensor chain: ``b``, or the sum of the per-object
+        components after the scene-side (``kind = "basis"``) effects; ``frozen``
+        a precomputed value (the scene-side effects are not being fitted)."""
+        if frozen is not None:
+            return frozen
+        if self.basis_t is None or not any(self.components[i].effect.kind == "basis"
+                                           for i in order):
+            return self.b_t
+        B = self._components(tens, order)
         out = B[0]
         for b in B[1:]:
             out = ops.cadd(out, b)
         return out
 
-    def _forward(self, tens: dict):
+    def _order(self):
+        return sorted(range(len(self.components)), key=lambda i: self.components[i].effect.stage)
+
+    def frozen_base(self):
+        """The base after the scene-side effects at their current values, evaluated
+        once (detached) for fits that leave them fixed; ``None`` without any."""
+        if self.basis_t is None or not any(c.effect.kind == "basis" for c in self.components):
+            return None
+        with dr.suspend_grad():
+            b = self._base(self._tensors(), self._order())
+            dr.eval(b[0], b[1])
+        return b
+
+    @_one_thread
+    def component_shares(self) -> np.ndarray:
+        """Energy fraction of each per-object base component in the current model."""
+        with dr.suspend_grad():
+            B = self._components(self._tensors(), self._order())
+            e = np.array([float(np.sum(np.abs(ops.to_numpy(b)) ** 2)) for b in B])
+        return e / max(e.sum(), 1e-300)
+
+    def _forward(self, tens: dict, frozen=None):
         """``(x, X, v)`` from tensors ``tens[(i, name)]`` (``i = -1`` nuisance)."""
         g = tens[(-1, "gain")]
         one = (1, 1, 1, 1, 1)
-        order = sorted(range(len(self.components)), key=lambda i: self.components[i].effect.stage)
-        b = self._base(tens, order)
+        order = self._order()
+        b = self._base(tens, order, frozen)
         x = (ops.cmul(b, (ops.column(ops.view(g, (1, 2)), 0, one),
                           ops.column(ops.view(g, (1, 2)), 1, one)))
              if self.has_base else ops.zeros_like(self.b_t))
@@ -304,9 +376,9 @@ class EffectModel:
         return float(minimize_scalar(f, bounds=(hi - 40.0, hi), method="bounded",
                                      options={"xatol": 1e-6}).fun)
 
-    def loss(self, tens, mask, n):
+    def loss(self, tens, mask, n, frozen=None):
         """Masked mean NLL ``sum mask (|Y - X|^2 / v + log v) / n`` as a Dr.Jit value (AD)."""
-        _, X, v = self._forward(tens)
+        _, X, v = self._forward(tens, frozen)
         r2 = ops.abs2((self.Y[0] - X[0], self.Y[1] - X[1]))
         return dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / n
 
@@ -335,6 +407,8 @@ class EffectModel:
         bounds = sum((s.bounds() for s in specs), [])
         mask, n = self.mask_tensor(cells)
         key_set = set(keys)
+        frozen = None if any(i >= 0 and self.components[i].effect.kind == "basis"
+                             for i, _ in keys) else self.frozen_base()
 
         def unpack(vec):
             out, o = {}, 0
@@ -347,7 +421,7 @@ class EffectModel:
             for (i, k), val in unpack(vec).items():
                 comps[i].values[k] = val
             tens = self._tensors(grad_keys=key_set)
-            loss = self.loss(tens, mask, n)
+            loss = self.loss(tens, mask, n, frozen)
             dr.backward(loss)
             grad = np.concatenate([np.asarray(dr.grad(tens[key]), np.float64).ravel()
                                    for key in keys])

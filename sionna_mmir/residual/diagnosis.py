@@ -203,7 +203,7 @@ def _backfit(model: EffectModel, newest, maxiter: int):
     """
     best = model.nll()
     for i in range(len(model.components)):
-        if model.components[i] is newest:
+        if model.components[i] is newest or model.components[i].effect.kind == "basis":
             continue
         trial = model.copy()
         old = trial.components[i]
@@ -219,19 +219,41 @@ def _backfit(model: EffectModel, newest, maxiter: int):
     return newest
 
 
-def _rank_round(model, pool, trains, penalty, maxiter, progress, min_gain):
-    """One round's ranking, mean candidates first (see the module docstring):
-    ``(ranking, best)`` with ``best`` None when nothing should be adopted."""
+class _Tiers:
+    """The models candidates are scored on: the chirp-averaged model for the
+    chirp-static candidates (as many nats from a fraction of the data), the
+    full model for the rest; with their cross-validation folds."""
+
+    def __init__(self, model, folds, seed, groups):
+        self.model = model
+        static = all(c.effect.chirp_static for c in model.components)
+        self.avg = model.chirp_averaged() if static else model
+        self.folds = _folds(model.ctx.shape[:4], folds, seed, groups)[0]
+        self.avg_folds = (self.folds if self.avg is model
+                          else _folds(self.avg.ctx.shape[:4], folds, seed, groups)[0])
+
+    def rank(self, candidates, penalty, maxiter, progress):
+        fast = [c for c in candidates if c.chirp_static]
+        slow = [c for c in candidates if not c.chirp_static]
+        out = rank_candidates(self.avg, fast, self.avg_folds, penalty, maxiter, progress)
+        if slow:
+            out += rank_candidates(self.model, slow, self.folds, penalty, maxiter, progress)
+        return sorted(out, key=lambda c: c.score, reverse=True)
+
+
+def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
+    """One round's ranking, mean (and scene) candidates first (see the module
+    docstring): ``(ranking, best)`` with ``best`` None when nothing should be
+    adopted.  Screened candidates are left out."""
     def ok(c):
         return c.score > 0 and c.gain_per_sample >= min_gain
 
     ranking = []
     for kinds in (("basis", "mean"), ("variance",)):
-        group = [c for c in pool if c.kind in kinds]
+        group = [c for c in pool if c.kind in kinds and c.name not in screened]
         if not group:
             continue
-        ranking = sorted(ranking + rank_candidates(model, group, trains, penalty, maxiter,
-                                                   progress),
+        ranking = sorted(ranking + tiers.rank(group, penalty, maxiter, progress),
                          key=lambda c: c.score, reverse=True)
         best = next((c for c in ranking if ok(c)), None)
         if best is not None:
@@ -239,17 +261,127 @@ def _rank_round(model, pool, trains, penalty, maxiter, progress, min_gain):
     return ranking, None
 
 
-def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6,
-             penalty: float = 1.0, min_gain: float = 1e-3, seed: int = 0,
-             maxiter: int = 150, progress=None, groups: str = "auto") -> Diagnosis:
-    """The adopt-until-nothing-helps loop; see the module docstring.
+def _adopt(model, eff, maxiter):
+    """Add ``eff`` and refit everything jointly (backfitting earlier sensor
+    effects); on chirp-averaged data when every component allows it (then the
+    full model takes the values and refits its noise floor).  Returns the new
+    component."""
+    static = eff.chirp_static and all(c.effect.chirp_static for c in model.components)
+    work = model.chirp_averaged() if static else model
+    comp = work.add(copy.deepcopy(eff))
+    work.fit(maxiter=2 * maxiter)
+    comp = _backfit(work, comp, maxiter)
+    if work is not model:                   # the values carry over; refit the floor only
+        k = work.components.index(comp)
+        model.components = [_copy_component(c) for c in work.components]
+        model.nuisance.values["gain"] = np.array(work.nuisance.values["gain"], copy=True)
+        model.fit(trainable=[], maxiter=maxiter)
+        comp = model.components[k]
+    return comp
 
-    ``candidates``: effect instances (e.g. :func:`~sionna_mmir.effects.library.default_library`).
-    An effect with ``repeatable = True`` stays a candidate after adoption
-    (e.g. a second missing scatterer).  ``progress(name)`` is called after
-    each candidate is scored.  ``groups``: the cross-validation hold-out unit
-    (see :func:`cv_folds`).
+
+def _copy_component(c):
+    from ..effects.model import Component
+
+    return Component(effect=c.effect, specs=c.specs,
+                     values={k: np.array(v, copy=True) for k, v in c.values.items()})
+
+
+#: rounds after which a diagnosis stops even while candidates still help
+ROUND_CAP = 24
+
+
+class DiagnosisRun:
+    """The adopt-until-nothing-helps loop, one round at a time (resumable).
+
+    Parameters
+    ----------
+    model : EffectModel
+        Base model and adopted effects (modified in place).
+    candidates : list of Effect
+        Candidate effects.
+    folds, penalty, min_gain, seed, maxiter, groups
+        As :func:`diagnose`.
+    progress : callable, optional
+        ``progress(event, name)`` with ``event`` ``"scored"`` (a candidate)
+        or ``"adopted"``.
     """
+
+    def __init__(self, model: EffectModel, candidates, folds: int = 3, penalty: float = 1.0,
+                 min_gain: float = 1e-3, seed: int = 0, maxiter: int = 150, groups: str = "auto",
+                 progress=None):
+        from .screening import screen
+
+        candidates = _check_candidates(candidates, model)
+        self.model, self.pool, self.names = model, list(candidates), [c.name for c in candidates]
+        self.folds, self.penalty, self.min_gain = folds, penalty, min_gain
+        self.seed, self.maxiter, self.groups, self.progress = seed, maxiter, groups, progress
+        self.fold_groups = _folds(model.ctx.shape[:4], folds, seed, groups)[1]
+        self.screened = screen(model.y, model.scale, candidates)
+        self.adoptions, self.ranking, self.stop_reason = [], [], None
+        model.fit(trainable=[], maxiter=maxiter)
+        r = model.residual()
+        if not np.sum(np.abs(r) ** 2) > 1e-12 * np.sum(np.abs(model.y * model.scale) ** 2):
+            raise InputValueError("diagnose: empty residual: the model already reproduces the "
+                                  "capture exactly (is the model the capture itself?)")
+        self.first = self.current = _current_metrics(model)
+        self.first_mean, self.first_var = model.mean_variance_numpy()
+
+    @property
+    def done(self) -> bool:
+        return self.stop_reason is not None
+
+    def step(self) -> Adoption | None:
+        """Rank, adopt the best and refit everything; ``None`` (and
+        :attr:`stop_reason` set) when nothing helps any more."""
+        if not self.pool:
+            self.stop_reason = "no candidate left"
+            return None
+        if len(self.adoptions) >= ROUND_CAP:
+            self.stop_reason = f"round cap ({ROUND_CAP}) reached while candidates still helped"
+            return None
+        tiers = _Tiers(self.model, self.folds, self.seed, self.groups)
+        scored = None if self.progress is None else (lambda n: self.progress("scored", n))
+        ranking, best = _rank_round(tiers, self.pool, self.penalty, self.maxiter, scored,
+                                    self.min_gain, self.screened)
+        self.ranking = ranking
+        if best is None:
+            self.stop_reason = "no candidate improves the held-out likelihood"
+            return None
+        eff = next(c for c in self.pool if c.name == best.name)
+        before, res_before = self.current, self.model.residual()
+        comp = _adopt(self.model, eff, self.maxiter)
+        self.current = _current_metrics(self.model)
+        a = Adoption(name=eff.name, round=len(self.adoptions), candidates=ranking, before=before,
+                     after=self.current, params=comp.effect.summary(comp.values, self.model.ctx),
+                     residual_before=res_before, residual_after=self.model.residual())
+        self.adoptions.append(a)
+        if not getattr(eff, "repeatable", False):
+            self.pool = [c for c in self.pool if c is not eff]
+        if self.progress is not None:
+            self.progress("adopted", eff.name)
+        return a
+
+    def result(self) -> Diagnosis:
+        """The :class:`Diagnosis` so far."""
+        model = self.model
+        unexplained = json_view(residual_domains(model.ctx, model.y * model.scale,
+                                                 model.mean_adc()))
+        settings = {"folds": self.folds, "fold_groups": self.fold_groups,
+                    "round_cap": ROUND_CAP, "penalty_nats_per_param": self.penalty,
+                    "min_gain_nats_per_sample": self.min_gain, "seed": self.seed,
+                    "candidates": self.names, "screened": self.screened,
+                    "stop_reason": self.stop_reason}
+        return Diagnosis(model=model, first=self.first, final=self.current,
+                         adoptions=self.adoptions,
+                         last_candidates=self.ranking if self.done else [],
+                         unexplained=unexplained, settings=settings,
+                         first_mean=self.first_mean * model.scale,
+                         first_variance=self.first_var * model.scale ** 2)
+
+
+def _check_candidates(candidates, model) -> list:
+    """Validated candidates that the capture can support (frames)."""
     candidates = list(candidates)
     if not candidates:
         raise ConfigError("diagnose: no candidate effects given")
@@ -258,43 +390,43 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int = 6
         raise ConfigError(f"diagnose: candidate names repeat: {names}")
     # effects that need more frames than the capture has (e.g. a per-frame mover
     # on one frame is a static scatterer with a free velocity) are not candidates
-    candidates = [c for c in candidates
-                  if getattr(c, "min_frames", 1) <= model.ctx.num_frames]
-    model.fit(trainable=[], maxiter=maxiter)
-    r = model.residual()
-    if not np.sum(np.abs(r) ** 2) > 1e-12 * np.sum(np.abs(model.y * model.scale) ** 2):
-        raise InputValueError("diagnose: empty residual: the model already reproduces the "
-                              "capture exactly (is the model the capture itself?)")
-    first = current = _current_metrics(model)
-    first_mean, first_var = model.mean_variance_numpy()
-    trains, fold_groups = _folds(model.ctx.shape[:4], folds, seed, groups)
-    adoptions, ranking = [], []
-    pool = list(candidates)
-    for rnd in range(max_rounds):
-        if not pool:
+    return [c for c in candidates if getattr(c, "min_frames", 1) <= model.ctx.num_frames]
+
+
+def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int | None = None,
+             penalty: float = 1.0, min_gain: float = 1e-3, seed: int = 0,
+             maxiter: int = 150, progress=None, groups: str = "auto") -> Diagnosis:
+    """The adopt-until-nothing-helps loop; see the module docstring.
+
+    Parameters
+    ----------
+    model : EffectModel
+        Base model (modified in place).
+    candidates : list of Effect
+        E.g. :func:`~sionna_mmir.effects.library.default_library`; an effect
+        with ``repeatable = True`` stays a candidate after adoption.
+    folds : int
+        Cross-validation folds.
+    max_rounds : int, optional
+        Most adoptions (default: until nothing helps, at most :data:`ROUND_CAP`).
+    penalty : float
+        Nats per real parameter.
+    progress : callable, optional
+        ``progress(name)`` after each candidate is scored.
+    groups : {"auto", "channel", "cell"}
+        The cross-validation hold-out unit (see :func:`cv_folds`).
+
+    Returns
+    -------
+    Diagnosis
+    """
+    run = DiagnosisRun(model, candidates, folds=folds, penalty=penalty, min_gain=min_gain,
+                       seed=seed, maxiter=maxiter, groups=groups,
+                       progress=None if progress is None else
+                       (lambda event, name: progress(name) if event == "scored" else None))
+    while not run.done:
+        if max_rounds is not None and len(run.adoptions) >= max_rounds:
+            run.stop_reason = f"max_rounds ({max_rounds}) reached"
             break
-        ranking, best = _rank_round(model, pool, trains, penalty, maxiter, progress, min_gain)
-        if best is None:
-            break
-        eff = next(c for c in pool if c.name == best.name)
-        before = current
-        res_before = model.residual()
-        comp = model.add(copy.deepcopy(eff))
-        model.fit(maxiter=2 * maxiter)
-        comp = _backfit(model, comp, maxiter)
-        after = current = _current_metrics(model)
-        adoptions.append(Adoption(name=eff.name, round=rnd, candidates=ranking, before=before,
-                                  after=after, params=eff.summary(comp.values, model.ctx),
-                                  residual_before=res_before, residual_after=model.residual()))
-        if not getattr(eff, "repeatable", False):
-            pool = [c for c in pool if c is not eff]
-        ranking = []
-    final = current
-    mean = model.mean_adc()
-    unexplained = json_view(residual_domains(model.ctx, model.y * model.scale, mean))
-    settings = {"folds": folds, "fold_groups": fold_groups, "max_rounds": max_rounds, "penalty_nats_per_param": penalty,
-                "min_gain_nats_per_sample": min_gain, "seed": seed, "candidates": names}
-    return Diagnosis(model=model, first=first, final=final, adoptions=adoptions,
-                     last_candidates=ranking, unexplained=unexplained, settings=settings,
-                     first_mean=first_mean * model.scale,
-                     first_variance=first_var * model.scale ** 2)
+        run.step()
+    return run.result()

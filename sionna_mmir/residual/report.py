@@ -170,10 +170,6 @@ def _write(d, tmp, capture, model_source):
     m = d.model
     ctx = m.ctx
     y = m.y * m.scale
-    final_mean, final_var = m.mean_variance_numpy()
-    final_mean, final_var = final_mean * m.scale, final_var * m.scale ** 2
-    first_res = y - d.first_mean
-    final_res = y - final_mean
     doc = {"capture": capture, "model_source": model_source, "settings": d.settings,
            "first": d.first, "final": d.final,
            "adoptions": [{"name": a.name, "round": a.round, "before": a.before, "after": a.after,
@@ -187,6 +183,19 @@ def _write(d, tmp, capture, model_source):
         json.dump(doc, f, indent=1, default=float)
     with open(os.path.join(tmp, "residual.md"), "w") as f:
         f.write(_markdown(d, doc))
+    write_figures(d, tmp, capture)
+
+
+def write_figures(d, tmp, capture) -> None:
+    """RA panels (measured, first / final model and residual), the residual's
+    range profile and channel map, and one before / after panel per adoption."""
+    m = d.model
+    ctx = m.ctx
+    y = m.y * m.scale
+    final_mean, final_var = m.mean_variance_numpy()
+    final_mean, final_var = final_mean * m.scale, final_var * m.scale ** 2
+    first_res = y - d.first_mean
+    final_res = y - final_mean
     ra_y, rng, az = _ra(ctx, y)
     maps = {"measured": ra_y,
             "first model": model_ra(ctx, d.first_mean, d.first_variance)[0],

@@ -42,6 +42,7 @@ class ADCClipping(Effect):
     """Smooth I/Q saturation at ``+-A`` (1 parameter, ln of normalised units)."""
 
     name = "adc_clipping"
+    chirp_static = False
     kind = "mean"
     stage = 3
     description = "ADC saturation of I and Q at +-A (smooth clip); apply last"

@@ -255,6 +255,7 @@ class EgoMotion(Effect):
     """
 
     name = "ego_motion"
+    chirp_static = False
     kind = "mean"
     stage = 1
     description = "radar ego motion along boresight (slow-time Doppler of the static scene)"

@@ -207,9 +207,10 @@ class MultipathGhost(Effect):
         return best
 
     def _search(self, ctx, z, p, a):
-        """Best ``(q, n, offset, gamma_ref)`` by LS energy reduction: a grid of a third of
-        a range bin over the candidates, then a tenth of that about the best."""
-        coarse = ctx.radar.range_resolution / 3
+        """Best ``(q, n, offset, gamma_ref)`` by LS energy reduction: a grid of two thirds
+        of a range bin over the candidates (the score's peak is a range bin wide),
+        then a sixth of that about the best."""
+        coarse = ctx.radar.range_resolution / 1.5
         best = None
         for q, n, offs in self._candidates(ctx, p, coarse):
             found = self._scan(ctx, z, p, a, q, n, offs)
@@ -219,7 +220,7 @@ class MultipathGhost(Effect):
             raise ConfigError("MultipathGhost: no candidate plane gives a resolvable ghost "
                               f"(distances={self.distances})")
         (_, off, g), q, n = best
-        fine = off + np.linspace(-coarse, coarse, 21)
+        fine = off + np.linspace(-coarse, coarse, 13)
         if self.plane is not None:
             fine = np.clip(fine, -self.max_offset, self.max_offset)
         found = self._scan(ctx, z, p, a, q, n, fine)

@@ -223,6 +223,7 @@ class MovingScatterer(Effect):
     """
 
     name = "moving_scatterer"
+    chirp_static = False
     kind = "mean"
     stage = 0
     repeatable = True

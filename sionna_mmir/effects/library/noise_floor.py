@@ -41,6 +41,7 @@ class NoiseFloor(Effect):
     """Per-Rx coloured noise level, shared 1/f knee and roll-off (``R + 2`` parameters)."""
 
     name = "noise_floor"
+    chirp_static = False
     kind = "variance"
     stage = 2
     description = "coloured receiver noise: per-Rx level, 1/f knee, anti-alias roll-off"

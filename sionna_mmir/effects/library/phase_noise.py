@@ -63,6 +63,7 @@ class PhaseNoise(Effect):
     """Phase-noise skirt ``|X|^2 (*) K`` with a power-law kernel (2 parameters: dB, 1)."""
 
     name = "phase_noise"
+    chirp_static = False
     kind = "variance"
     stage = 1
     description = "LO phase-noise skirt around strong tones (power-law PSD)"

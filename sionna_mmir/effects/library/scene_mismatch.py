@@ -45,7 +45,6 @@ class BasisEffect(Effect):
 
     kind = "basis"
     stage = 0
-    scene_side = True
 
     def apply_basis(self, B: list, p: dict, ctx) -> list:
         """Per-object components ``[(re, im)]`` -> transformed components."""
@@ -194,15 +193,20 @@ class ObjectPattern(BasisEffect):
         self.max_objects = int(max_objects)
 
     def objects(self, ctx) -> list:
-        """Indices of the components that get a pattern (the strongest ones)."""
+        """Indices of the components that get a pattern: the strongest in the
+        current model when the pattern was set up, else in the render."""
+        chosen = getattr(self, "_objects", None)
+        if chosen is not None:
+            return chosen
         if ctx.basis is None:
             return []
-        shares = ctx.basis.shares
-        order = [int(o) for o in np.argsort(shares)[::-1] if shares[o] >= self.min_share]
-        return order[:self.max_objects]
+        return _strongest(ctx.basis.shares, self.min_share, self.max_objects)
 
     def param_specs(self, ctx, model, residual):
         T, R = ctx.radar.num_tx, ctx.radar.num_rx
+        shares = getattr(ctx.basis, "current_shares", None)
+        self._objects = _strongest(ctx.basis.shares if shares is None else shares,
+                                   self.min_share, self.max_objects)
         specs = {}
         for o in self.objects(ctx):
             specs[f"tx{o}"] = ParamSpec(np.zeros((T, 2)), lower=[-3.0, -np.inf],
@@ -229,3 +233,8 @@ class ObjectPattern(BasisEffect):
             db = 20 / np.log(10) * a
             out[ctx.basis.names[o]] = {"gain_db_spread": float(db.max() - db.min())}
         return out
+
+
+def _strongest(shares, min_share, max_objects) -> list:
+    order = [int(o) for o in np.argsort(shares)[::-1] if shares[o] >= min_share]
+    return order[:max_objects]

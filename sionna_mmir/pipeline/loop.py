@@ -1,0 +1,327 @@
+"""``run_loop``: fit, diagnose, adopt, refit jointly, report -- closing the loop.
+
+Stages (each checkpointed; ``resume`` continues after the last finished one):
+
+1. **load** -- the capture (any format the package reads; a ColoRadar run's
+   radar pose from its own ``calib/transforms``), the meshes (or, for a
+   corner-reflector capture without a mesh, the trihedral-and-floor scene
+   at the detected corner);
+2. **fit** -- per-vertex materials and beam patterns to the range-azimuth
+   map (:class:`~sionna_mmir.fit.MMIRModel`);
+3. **base** -- the fitted scene rendered and split per object, refined in
+   the complex ADC domain (per-object gains, radar pose against the mesh
+   frame): the *first* model, right in range and phase;
+4. **diagnose** -- candidates (scene-side and sensor effects) ranked by
+   how well they predict held-out channels; the best is adopted and
+   everything refitted jointly, until nothing helps
+   (:class:`~sionna_mmir.residual.diagnosis.DiagnosisRun`);
+5. **report** -- ``report.json``, ``report.md``, pictures, the final
+   model's render and the fitted scene.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import shutil
+import time
+
+import numpy as np
+
+from ..errors import ConfigError, InputValueError
+from .radar_model import RadarModel, loop_solver_options
+
+#: format tag of the loop's checkpoint file
+STATE_FORMAT = ("sionna_mmir.loop_state", 1)
+
+
+@dataclasses.dataclass
+class LoopRequest:
+    """What one ``loop`` run does.
+
+    Parameters
+    ----------
+    capture : str
+        Capture path (any format :func:`~sionna_mmir.captures.load_capture` reads).
+    out : str
+        Report folder.
+    meshes : dict
+        Object name -> mesh path (in the radar's scene frame); empty with
+        ``scene="corner"``.
+    scene : {"meshes", "corner"}
+        Where the scene comes from.
+    materials : dict
+        Object name -> ITU-R P.2040 material (default concrete; metal for
+        the corner scene's reflector).
+    position, orientation : tuple or None
+        Radar pose [m], (yaw, pitch, roll) [rad]; ``None``: the run's own
+        transforms (ColoRadar), else the origin.
+    fit_iterations : int
+        Adam steps of the range-azimuth fit (0: skip it).
+    """
+
+    capture: str
+    out: str
+    meshes: dict = dataclasses.field(default_factory=dict)
+    scene: str = "meshes"
+    materials: dict = dataclasses.field(default_factory=dict)
+    frame: int | None = None
+    calib_dir: str | None = None
+    sensor: str = "cascade"
+    position: tuple | None = None
+    orientation: tuple | None = None
+    fit_iterations: int = 10
+    lr: float = 0.05
+    seed: int = 0
+    solver: object = dataclasses.field(default_factory=loop_solver_options)
+    effects: object = None
+    folds: int = 3
+    penalty: float = 1.0
+    max_objects: int = 8
+    resume: bool = False
+    overwrite: bool = False
+    progress: bool = True
+
+
+def check_request(req: LoopRequest) -> None:
+    """Refuse impossible settings before any work."""
+    if os.path.exists(req.out) and not (req.overwrite or req.resume):
+        raise FileExistsError(f"{req.out}: report folder exists (use --overwrite or --resume)")
+    if req.scene not in ("meshes", "corner"):
+        raise ConfigError(f"scene must be 'meshes' or 'corner', got {req.scene!r}")
+    if req.scene == "meshes" and not req.meshes:
+        raise ConfigError("no meshes given (pass mesh files, or --scene corner for a corner "
+                          "reflector capture)")
+    if req.fit_iterations < 0:
+        raise ConfigError(f"--fit-iterations must be >= 0, got {req.fit_iterations}")
+    if req.folds < 2:
+        raise ConfigError(f"--folds must be >= 2, got {req.folds}")
+    if not np.isfinite(req.penalty) or req.penalty < 0:
+        raise ConfigError(f"--penalty must be a finite number >= 0, got {req.penalty}")
+
+
+def load_capture_posed(req: LoopRequest):
+    """The capture with its radar at the requested pose (else the run's own)."""
+    from ..captures.loader import load_capture
+
+    cap = load_capture(req.capture, frame=req.frame, calib_dir=req.calib_dir, sensor=req.sensor)
+    if not np.isfinite(cap.frames.real).all() or not np.isfinite(cap.frames.imag).all():
+        raise InputValueError(f"{req.capture}: capture holds NaN or Inf samples")
+    position, orientation = req.position, req.orientation
+    if position is None and orientation is None:
+        position, orientation = _run_pose(req) or (cap.radar.position, cap.radar.orientation)
+    radar = dataclasses.replace(cap.radar, position=tuple(position or (0.0, 0.0, 0.0)),
+                                orientation=tuple(orientation or (0.0, 0.0, 0.0)))
+    return dataclasses.replace(cap, radar=radar)
+
+
+def _run_pose(req):
+    """The radar pose a ColoRadar run stores in ``calib/transforms``, or ``None``."""
+    from ..captures.coloradar import find_calib_dir
+    from ..captures.coloradar_calib import coloradar_pose
+
+    where = req.calib_dir
+    if where is None and os.path.isdir(req.capture):
+        where = find_calib_dir(req.capture, req.sensor)
+    return None if where is None else coloradar_pose(where, req.sensor)
+
+
+def build_scene(req: LoopRequest, cap):
+    """The scene of the request: its meshes, or the corner scene at the
+    capture's strongest return."""
+    from ..scene import load_scene
+
+    if req.scene == "corner":
+        from ..compare.corner_scene import CORNER_MATERIALS, corner_scene_meshes
+        from ..compare.demo import detect_corner_and_leakage
+
+        r, az, _, centre = detect_corner_and_leakage(cap.frame(0))
+        meshes = corner_scene_meshes(r, az, centre)
+        return load_scene(meshes, materials={**CORNER_MATERIALS, **req.materials},
+                          radar=cap.radar), {"corner_range_m": r,
+                                             "corner_azimuth_deg": float(np.degrees(az))}
+    unknown = sorted(set(req.materials) - set(req.meshes))
+    if unknown:
+        raise ConfigError(f"--material given for unknown objects {unknown}")
+    return load_scene(req.meshes, materials=req.materials, radar=cap.radar), {}
+
+
+def default_candidates(names=None) -> list:
+    """Candidate effects of a loop: the library and the scene-side refinements
+    (``names``: a list or comma-separated string; ``None``: all)."""
+    from ..effects.library import LIBRARY
+    from ..effects.library.scene_mismatch import ObjectDelay, ObjectPattern
+
+    extra = {"object_delay": ObjectDelay, "object_pattern": ObjectPattern}
+    known = {**LIBRARY, **extra}
+    if names is None:
+        return [cls() for cls in known.values()]
+    if isinstance(names, str):
+        names = names.split(",")
+    names = [n.strip() for n in names if n.strip()]
+    bad = sorted(set(names) - set(known))
+    if bad or not names:
+        raise ConfigError(f"--effects: unknown effect(s) {bad}; choose from {sorted(known)}"
+                          if bad else "--effects: empty list of candidate effects")
+    return [known[n]() for n in names]
+
+
+class Loop:
+    """One resumable ``loop`` run (see the module docstring)."""
+
+    def __init__(self, req: LoopRequest):
+        check_request(req)
+        self.req = req
+        self.tmp = req.out.rstrip("/") + ".partial"
+        self.state_path = os.path.join(self.tmp, "loop_state.pkl")
+        self.timings, self.info, self.run = {}, {}, None
+        self.model = None
+
+    # ------------------------------------------------------------ stages
+    def prepare(self):
+        """Load the capture and the scene, and restore a checkpoint to resume."""
+        if os.path.exists(self.tmp) and not self.req.resume:
+            shutil.rmtree(self.tmp)
+        os.makedirs(self.tmp, exist_ok=True)
+        t0 = time.perf_counter()
+        cap = load_capture_posed(self.req)
+        scene, self.info = build_scene(self.req, cap)
+        self.model = RadarModel(scene, cap, solver=self.req.solver,
+                                max_objects=self.req.max_objects)
+        self.timings["load_s"] = time.perf_counter() - t0
+        saved = self._load_state() if self.req.resume else None
+        if saved is not None:
+            self.model.restore(saved["model"])
+            self.run, self.timings = saved["run"], saved["timings"]
+            if self.run is not None:
+                self.run.model = self.model.chain
+                self.run.progress = self._progress
+        return self
+
+    def fit_scene(self):
+        """Stage 2: the range-azimuth fit of materials and beam patterns."""
+        if self.model.latents is not None or self.req.fit_iterations == 0:
+            return
+        from ..compare.harness import target_ra
+        from ..fit import fit
+
+        t0 = time.perf_counter()
+        res = fit(self.model.mmir, target_ra(self.model.capture.frames, self.model.radar),
+                  iterations=self.req.fit_iterations, lr=self.req.lr, seed=self.req.seed,
+                  progress=self.req.progress,
+                  checkpoint=os.path.join(self.tmp, "fit_mmir.h5"))
+        self.model.latents = res.latents
+        self.timings["fit_s"] = time.perf_counter() - t0
+        self._save_state()
+
+    def base(self):
+        """Stage 3: the per-object basis and its complex-domain refinement."""
+        if self.run is not None:
+            return
+        from ..residual.diagnosis import DiagnosisRun
+
+        t0 = time.perf_counter()
+        self.model.render_basis(seed=self.req.seed)
+        self.model.attach()
+        self.scene_mismatch = self.model.refine()
+        self.run = DiagnosisRun(self.model.chain, default_candidates(self.req.effects),
+                                folds=self.req.folds, penalty=self.req.penalty,
+                                seed=self.req.seed, progress=self._progress)
+        self.timings["base_s"] = time.perf_counter() - t0
+        self._check_overlap()
+        self._save_state()
+
+    def diagnose(self):
+        """Stage 4: rounds until nothing helps (checkpoint after each)."""
+        from tqdm import tqdm
+
+        t0 = time.perf_counter()
+        self._bar = tqdm(desc="diagnosis", unit="fit", disable=not self.req.progress,
+                         leave=False)
+        while not self.run.done:
+            self.run.step()
+            self._save_state()
+        self._bar.close()
+        self.timings["diagnose_s"] = self.timings.get("diagnose_s", 0.0) + \
+            time.perf_counter() - t0
+
+    def report(self) -> dict:
+        """Stage 5: write the report folder and return ``report.json``'s content."""
+        from .report import write_loop_report
+
+        doc = write_loop_report(self, self.tmp)
+        if os.path.exists(self.state_path):
+            os.remove(self.state_path)
+        if os.path.exists(self.req.out):
+            shutil.rmtree(self.req.out)
+        os.replace(self.tmp, self.req.out)
+        return doc
+
+    # ----------------------------------------------------------- helpers
+    def _progress(self, event, name):
+        bar = getattr(self, "_bar", None)
+        if bar is None:
+            return
+        if event == "scored":
+            bar.set_postfix_str(f"scored {name}")
+            bar.update(1)
+        else:
+            bar.write(f"adopted {name}")
+
+    def _check_overlap(self):
+        """Warn when the scene explains little of the capture (wrong frame?)."""
+        e = self.run.first.get("residual_energy_db", 0.0)
+        if e > -1.0:
+            import warnings
+
+            msg = (f"{self.req.capture}: the scene explains only "
+                   f"{100 * (1 - 10 ** (e / 10)):.0f} % of the capture's energy: the meshes and "
+                   "the capture barely overlap (is the mesh in the radar's scene frame, +x "
+                   "boresight, +y left, +z up? give --position / --orientation)")
+            self.info["overlap_warning"] = msg
+            warnings.warn(msg, stacklevel=2)
+
+    def _save_state(self):
+        from ..utils.atomic import atomic_path
+
+        state = {"format": STATE_FORMAT, "model": self.model.state(), "run": self.run,
+                 "timings": self.timings, "info": self.info,
+                 "scene_mismatch": getattr(self, "scene_mismatch", None)}
+        run, saved = self.run, None
+        if run is not None:
+            saved, run.model, run.progress = (run.model, run.progress), None, None
+        try:
+            with atomic_path(self.state_path) as tmp:
+                with open(tmp, "wb") as f:
+                    pickle.dump(state, f)
+        finally:
+            if saved is not None:
+                run.model, run.progress = saved
+
+    def _load_state(self):
+        if not os.path.exists(self.state_path):
+            return None
+        with open(self.state_path, "rb") as f:
+            state = pickle.load(f)
+        if state.get("format") != STATE_FORMAT:
+            raise InputValueError(f"{self.state_path}: not a loop checkpoint of this version")
+        self.info = state["info"]
+        self.scene_mismatch = state["scene_mismatch"]
+        return state
+
+
+def run_loop(req: LoopRequest) -> dict:
+    """Run (or resume) a loop and return its report (``report.json``)."""
+    loop = Loop(req).prepare()
+    try:
+        loop.fit_scene()
+        loop.base()
+        loop.diagnose()
+        return loop.report()
+    except Exception:
+        if not req.resume and os.path.exists(loop.tmp):
+            shutil.rmtree(loop.tmp, ignore_errors=True)
+        raise
+
+
+__all__ = ["LoopRequest", "Loop", "run_loop", "default_candidates", "check_request"]
