@@ -250,8 +250,9 @@ class Loop:
         from .report import write_loop_report
 
         doc = write_loop_report(self, self.tmp)
-        if os.path.exists(self.state_path):
-            os.remove(self.state_path)
+        for name in ("loop_state.pkl", "basis.pkl"):
+            if os.path.exists(os.path.join(self.tmp, name)):
+                os.remove(os.path.join(self.tmp, name))
         if os.path.exists(self.req.out):
             shutil.rmtree(self.req.out)
         os.replace(self.tmp, self.req.out)
@@ -284,7 +285,14 @@ class Loop:
     def _save_state(self):
         from ..utils.atomic import atomic_path
 
-        state = {"format": STATE_FORMAT, "model": self.model.state(), "run": self.run,
+        model_state = self.model.state()
+        basis_path = os.path.join(self.tmp, "basis.pkl")
+        if model_state["basis"] is not None and not os.path.exists(basis_path):
+            with atomic_path(basis_path) as tmp:
+                with open(tmp, "wb") as f:
+                    pickle.dump(model_state["basis"], f)
+        model_state["basis"] = None
+        state = {"format": STATE_FORMAT, "model": model_state, "run": self.run,
                  "timings": self.timings, "info": self.info,
                  "scene_mismatch": getattr(self, "scene_mismatch", None)}
         run, saved = self.run, None
@@ -305,6 +313,10 @@ class Loop:
             state = pickle.load(f)
         if state.get("format") != STATE_FORMAT:
             raise InputValueError(f"{self.state_path}: not a loop checkpoint of this version")
+        basis_path = os.path.join(self.tmp, "basis.pkl")
+        if os.path.exists(basis_path):
+            with open(basis_path, "rb") as f:
+                state["model"]["basis"] = pickle.load(f)
         self.info = state["info"]
         self.scene_mismatch = state["scene_mismatch"]
         return state

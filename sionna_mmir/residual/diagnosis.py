@@ -245,8 +245,10 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
     """One round's ranking, mean (and scene) candidates first (see the module
     docstring): ``(ranking, best)`` with ``best`` None when nothing should be
     adopted.  Screened candidates are left out."""
+    floor = {c.name: max(min_gain, getattr(c, "min_gain_per_sample", 0.0)) for c in pool}
+
     def ok(c):
-        return c.score > 0 and c.gain_per_sample >= min_gain
+        return c.score > 0 and c.gain_per_sample >= floor.get(c.name, min_gain)
 
     ranking = []
     for kinds in (("basis", "mean"), ("variance",)):
@@ -354,7 +356,8 @@ class DiagnosisRun:
         self.current = _current_metrics(self.model)
         a = Adoption(name=eff.name, round=len(self.adoptions), candidates=ranking, before=before,
                      after=self.current, params=comp.effect.summary(comp.values, self.model.ctx),
-                     residual_before=res_before, residual_after=self.model.residual())
+                     residual_before=res_before.astype(np.complex64),
+                     residual_after=self.model.residual().astype(np.complex64))
         self.adoptions.append(a)
         if not getattr(eff, "repeatable", False):
             self.pool = [c for c in self.pool if c is not eff]
