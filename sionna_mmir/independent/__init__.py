@@ -1,0 +1,39 @@
+"""independent truths: code that shares nothing with the model it scores.
+
+A reference radar renderer written in plain NumPy / SciPy, with trimesh for
+ray-triangle visibility.  It imports nothing from :mod:`sionna_mmir.paths`,
+:mod:`sionna_mmir.bsdf`, Mitsuba or Dr.Jit (a test checks the imports), so
+captures rendered with it can score the package's own solver without the
+score being self-referential.
+
+=====================  ======================================================
+physical_optics        :func:`render_reference`, :class:`ReferencePaths`: the
+                       renderer (physics and its limits in its docstring)
+truth                  :func:`reference_truth`: a benchmark scene rendered to
+                       a :class:`~sionna_mmir.captures.Capture`
+materials              ITU-R P.2040 permittivity, Fresnel and slab reflection
+patterns               isotropic and ``cos^q`` element gains
+mesh                   scene assembly, input checks, visibility (ray casts)
+planes                 coplanar faces grouped into planar pieces
+polygons               convex polygon clipping and central projection
+quadrature             sub-facet splitting and the exact linear-phase
+                       integral over a triangle
+images                 image-theory chains (double / triple bounce)
+rough                  Rayleigh loss and the Kirchhoff rough-surface sigma0
+accumulate             per-pair phasors, merging into paths
+=====================  ======================================================
+"""
+import importlib
+
+_LAZY = {"ReferencePaths": "physical_optics", "render_reference": "physical_optics",
+         "reference_truth": "truth"}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    globals()[name] = value
+    return value
