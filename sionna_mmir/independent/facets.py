@@ -7,8 +7,8 @@ co-polar; Knott, Shaeffer & Tuley, *Radar Cross Section*, Ch. 5)::
     h = (j / 4 pi) Gamma c_po rho A_t F / (d_s d_r) exp(-j k (d_s + d_r)),
     c_po = (cos_in + cos_t) / 2,   rho = coherent roughness factor,
 
-with ``F`` the exact average of the linear phase over the sub-facet
-(:mod:`.quadrature`).  For a flat plate at normal incidence in the far
+with ``F`` the average of the phase over the sub-facet (:mod:`.quadrature`,
+applied per pair in :mod:`.accumulate`).  For a flat plate at normal incidence in the far
 field this is ``|h| = A / (4 pi R^2)``, i.e. ``sigma = 4 pi A^2 / lambda^2``
 in the radar equation ``|h| = lambda sqrt(sigma) / ((4 pi)^{3/2} R^2)``.
 The incoherent part (:mod:`.rough`) adds ``lambda sqrt(sigma0 A_t) /
@@ -19,13 +19,60 @@ from __future__ import annotations
 import numpy as np
 
 from .materials import copol_reflection
-from .quadrature import max_subfacet_size, subdivide, triangle_phase_average
+from .quadrature import max_subfacet_size, subdivide
 from .rough import coherent_factor, kirchhoff_sigma0
+
+
+def _near(tris, src, rcv):
+    """Shorter leg at the nearest corner ``[F]`` [m]."""
+    return np.minimum(np.linalg.norm(tris - src, axis=2),
+                      np.linalg.norm(tris - rcv, axis=2)).min(axis=1)
+
+
+def _longest_edge(tris):
+    return np.max(np.linalg.norm(tris - np.roll(tris, 1, axis=1), axis=2), axis=1)
+
+
+def presplit(tris, src, rcv, ratio: float = 0.25, max_level: int = 10):
+    """Midpoint-split (4:1) triangles until the longest edge is ``<= ratio`` x their range.
+
+    Keeps the sub-facet size (which grows with range) nearly uniform inside
+    each piece, so that far parts of a large triangle are not split as
+    finely as its near corner.
+
+    Returns
+    -------
+    tris : numpy.ndarray
+        ``[F', 3, 3]`` pieces.
+    parent : numpy.ndarray
+        ``[F']`` index into the input.
+    """
+    done, done_parent = [], []
+    parent = np.arange(len(tris))
+    for _ in range(max_level):
+        big = _longest_edge(tris) > ratio * _near(tris, src, rcv)
+        done.append(tris[~big])
+        done_parent.append(parent[~big])
+        tris, parent = tris[big], parent[big]
+        if not len(tris):
+            break
+        m = 0.5 * (tris + np.roll(tris, -1, axis=1))            # midpoints of edges 01, 12, 20
+        p0, p1, p2, m01, m12, m20 = tris[:, 0], tris[:, 1], tris[:, 2], m[:, 0], m[:, 1], m[:, 2]
+        tris = np.concatenate([np.stack(c, axis=1) for c in
+                               ((p0, m01, m20), (m01, p1, m12), (m20, m12, p2), (m01, m12, m20))])
+        parent = np.tile(parent, 4)
+    done.append(tris)
+    done_parent.append(parent)
+    return np.concatenate(done), np.concatenate(done_parent)
 
 
 def split(tris: np.ndarray, src: np.ndarray, rcv: np.ndarray, k: float, aperture_m: float,
           opts: dict):
     """Sub-facets of ``tris [F, 3, 3]`` for a source ``src`` and receiver ``rcv`` ``[3]``.
+
+    Triangles are first split by :func:`presplit`, then each piece into
+    ``n^2`` congruent sub-facets with ``D / n <= D_max`` at the piece's range
+    (:func:`~.quadrature.max_subfacet_size`).
 
     Parameters
     ----------
@@ -36,7 +83,7 @@ def split(tris: np.ndarray, src: np.ndarray, rcv: np.ndarray, k: float, aperture
     k : float
         Wavenumber [rad/m].
     aperture_m : float
-        Array extent [m] (:func:`~.quadrature.max_subfacet_size`).
+        Array extent [m].
     opts : dict
         ``fresnel``, ``aperture_phase``, ``max_subfacet``, ``max_split``.
 
@@ -47,21 +94,25 @@ def split(tris: np.ndarray, src: np.ndarray, rcv: np.ndarray, k: float, aperture
     parent : numpy.ndarray
         ``[S]`` index into ``tris``.
     """
-    r = np.minimum(np.linalg.norm(tris - src, axis=2), np.linalg.norm(tris - rcv, axis=2))
-    edge = np.max(np.linalg.norm(tris - np.roll(tris, 1, axis=1), axis=2), axis=1)
-    dmax = max_subfacet_size(r.min(axis=1), k, aperture_m, opts["fresnel"],
+    pieces, owner = presplit(tris, src, rcv)
+    dmax = max_subfacet_size(_near(pieces, src, rcv), k, aperture_m, opts["fresnel"],
                              opts["aperture_phase"], opts["max_subfacet"])
-    n = np.clip(np.ceil(edge / dmax), 1, opts["max_split"]).astype(np.int64)
-    return subdivide(tris, n)
+    n = np.clip(np.ceil(_longest_edge(pieces) / dmax), 1, opts["max_split"]).astype(np.int64)
+    sub, parent = subdivide(pieces, n)
+    return sub, owner[parent]
 
 
 def weights(scene, sub, face, src, rcv, k, frequency_hz, diffuse=False, rng=None):
-    """Channel weights ``w [S]`` and centroids ``x [S, 3]`` of sub-facets (module docstring).
+    """Coherent and incoherent channel weights of sub-facets (module docstring).
+
+    The phase average ``F`` and the per-pair terms are applied later
+    (:mod:`.accumulate`); here are the angle-dependent factors at the
+    centroid, seen from the array centre.
 
     Parameters
     ----------
     scene : SceneMesh
-        For normals and materials.
+        For materials.
     sub : numpy.ndarray
         ``[S, 3, 3]`` sub-facets [m].
     face : numpy.ndarray
@@ -73,16 +124,16 @@ def weights(scene, sub, face, src, rcv, k, frequency_hz, diffuse=False, rng=None
     frequency_hz : float
         Frequency of the material model [Hz].
     diffuse : bool
-        Add the incoherent rough-surface term (needs ``rng``).
+        Also return the incoherent rough-surface term (needs ``rng``).
     rng : numpy.random.Generator or None
         Random phases of the incoherent term.
 
     Returns
     -------
-    x : numpy.ndarray
-        ``[S, 3]`` centroids [m].
-    w : numpy.ndarray
-        ``[S]`` complex128 weights [m^2].
+    w_coh : numpy.ndarray
+        ``[S]`` complex128 ``(j / 4 pi) Gamma c_po rho A`` [m^2].
+    w_diff : numpy.ndarray or None
+        ``[S]`` complex128 ``lambda sqrt(sigma0 A) / (4 pi)^{3/2} e^{j psi}`` [m^2].
     """
     x = sub.mean(axis=1)
     cr = np.cross(sub[:, 1] - sub[:, 0], sub[:, 2] - sub[:, 0])
@@ -97,14 +148,12 @@ def weights(scene, sub, face, src, rcv, k, frequency_hz, diffuse=False, rng=None
     p = scene.parameters(face, x)
     gamma = copol_reflection(cos_in, p, frequency_hz)
     c_po = 0.5 * (cos_in + cos_t)
+    w_coh = 1j / (4 * np.pi) * gamma * c_po * coherent_factor(k, p[:, 2], cos_in, cos_t) * area
+    if not diffuse:
+        return w_coh, None
     q = k * (k_in - u_t)
-    F = triangle_phase_average(q, sub, x)
-    w = 1j / (4 * np.pi) * gamma * c_po * coherent_factor(k, p[:, 2], cos_in, cos_t) * F * area
-    if diffuse:
-        q_z = np.einsum("sk,sk->s", q, n)
-        q_t = np.linalg.norm(q - q_z[:, None] * n, axis=1)
-        s0 = kirchhoff_sigma0(k, p[:, 2], p[:, 3], np.abs(q_z), q_t, gamma * c_po)
-        lam = 2 * np.pi / k
-        phase = np.exp(2j * np.pi * rng.random(len(x)))
-        w = w + lam * np.sqrt(s0 * area) / (4 * np.pi) ** 1.5 * phase
-    return x, w
+    q_z = np.einsum("sk,sk->s", q, n)
+    q_t = np.linalg.norm(q - q_z[:, None] * n, axis=1)
+    s0 = kirchhoff_sigma0(k, p[:, 2], p[:, 3], np.abs(q_z), q_t, gamma * c_po)
+    phase = np.exp(2j * np.pi * rng.random(len(x)))
+    return w_coh, (2 * np.pi / k) * np.sqrt(s0 * area) / (4 * np.pi) ** 1.5 * phase

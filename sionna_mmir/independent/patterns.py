@@ -70,16 +70,37 @@ def power_gain(pattern, directions: np.ndarray) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        ``[...]`` float64 gain (0 behind the array plane for ``cos^q``).
+        ``[...]`` gain (float64) (0 behind the array plane for ``cos^q``).
+    """
+    d = np.asarray(directions, dtype=np.float64)
+    return gain_xy(pattern, d[..., 0], d[..., 1])
+
+
+def gain_xy(pattern, ux, uy) -> np.ndarray:
+    """:func:`power_gain` from the radar-frame ``x`` and ``y`` components of unit directions.
+
+    Parameters
+    ----------
+    pattern : str or tuple
+        See :func:`pattern_exponents`.
+    ux, uy : numpy.ndarray
+        Same shape: boresight and left components.
+
+    Returns
+    -------
+    numpy.ndarray
+        Gain, in the precision of ``ux``.
     """
     q = pattern_exponents(pattern)
-    d = np.asarray(directions, dtype=np.float64)
     if q is None:
-        return np.ones(d.shape[:-1])
+        return np.ones(np.shape(ux))
     qa, qe = q
-    x = np.maximum(d[..., 0], 0.0)
-    rho = np.sqrt(np.maximum(d[..., 0] ** 2 + d[..., 1] ** 2, 1e-300))
-    log_g0 = np.log(4.0 * np.pi) - _log_wallis(qa) - _log_wallis(qe + 1.0)
+    x = np.maximum(ux, 0.0)
+    rho2 = np.maximum(ux * ux + uy * uy, 1e-30)
+    g0 = float(np.exp(np.log(4.0 * np.pi) - _log_wallis(qa) - _log_wallis(qe + 1.0)))
+    half = 0.5 * (qe - qa)
+    if qa == int(qa) and half == int(half) and half >= 0:      # cos(az)^qa cos(el)^qe by products
+        return np.where(x > 0, g0 * x ** int(qa) * rho2 ** int(half), 0.0)
     with np.errstate(divide="ignore"):
-        g = np.exp(log_g0 + qa * np.log(x / rho) + qe * np.log(rho))
+        g = g0 * np.exp(qa * np.log(x) + half * np.log(rho2))
     return np.where(x > 0, g, 0.0)
