@@ -98,8 +98,8 @@ def split(tris: np.ndarray, src: np.ndarray, rcv: np.ndarray, k: float, aperture
     dmax = max_subfacet_size(_near(pieces, src, rcv), k, aperture_m, opts["fresnel"],
                              opts["aperture_phase"], opts["max_subfacet"])
     n = np.clip(np.ceil(_longest_edge(pieces) / dmax), 1, opts["max_split"]).astype(np.int64)
-    sub, parent = subdivide(pieces, n)
-    return sub, owner[parent]
+    sub, piece = subdivide(pieces, n)
+    return sub, owner[piece]
 
 
 def weights(scene, sub, face, src, rcv, k, frequency_hz, diffuse=False, rng=None):

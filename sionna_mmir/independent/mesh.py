@@ -166,6 +166,7 @@ class Occlusion:
 
             m = trimesh.Trimesh(scene.vertices, scene.faces, process=False)
             self._rays = RayMeshIntersector(m)
+            self._normals = scene.normals
 
     def blocked(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
         """True where the open segment ``start -> end`` crosses a triangle.
@@ -197,9 +198,11 @@ class Occlusion:
         """Distance to the first triangle along each ray (``inf`` if none)."""
         t = np.full(len(o), np.inf)
         if self.embree:
-            _, ray, loc = self._rays.intersects_id(o, u, multiple_hits=False, return_locations=True)
+            face = self._rays.intersects_first(o, u)
+            ray = np.flatnonzero(face >= 0)
             if len(ray):
-                t[ray] = np.einsum("ij,ij->i", loc - o[ray], u[ray])
+                p0, n = self.tri[face[ray], 0], self._normals[face[ray]]
+                t[ray] = np.einsum("ij,ij->i", p0 - o[ray], n) / np.einsum("ij,ij->i", u[ray], n)
             return t
         return _moller_trumbore(o, u, self.tri)
 

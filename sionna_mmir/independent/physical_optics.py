@@ -231,11 +231,11 @@ def _chain_bounce(chain, pieces, scene, occl, array, k, freq, opts) -> Scatterer
     for m in range(len(seq) - 2, -1, -1):
         pc = pieces[seq[m]]
         pts[m] = nxt = _crossing(np.broadcast_to(srcs[m + 1], nxt.shape), nxt, pc.normal, pc.offset)
-    ok = np.ones(len(x), dtype=bool)
-    path = pts + [x]
     ends = [_offset(p, np.broadcast_to(pieces[q].normal, p.shape), np.broadcast_to(srcs[m], p.shape))
-            for m, (p, q) in enumerate(zip(path, seq))]
-    for a, b in zip([np.broadcast_to(c, x.shape)] + ends, ends + [np.broadcast_to(c, x.shape)]):
+            for m, (p, q) in enumerate(zip(pts + [x], seq))]
+    cc = np.broadcast_to(c, x.shape)
+    ok = np.ones(len(x), dtype=bool)
+    for a, b in zip([cc] + ends, ends + [cc]):
         ok &= ~occl.blocked(np.ascontiguousarray(a), np.ascontiguousarray(b))
     for m, p in enumerate(pts):
         u = p - srcs[m]
