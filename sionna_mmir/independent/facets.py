@@ -67,12 +67,14 @@ def presplit(tris, src, rcv, ratio: float = 0.25, max_level: int = 10):
 
 
 def split(tris: np.ndarray, src: np.ndarray, rcv: np.ndarray, k: float, aperture_m: float,
-          opts: dict):
+          opts: dict, aperture_phase: float | None = None, vis_cell: float | None = None):
     """Sub-facets of ``tris [F, 3, 3]`` for a source ``src`` and receiver ``rcv`` ``[3]``.
 
     Triangles are first split by :func:`presplit`, then each piece into
     ``n^2`` congruent sub-facets with ``D / n <= D_max`` at the piece's range
-    (:func:`~.quadrature.max_subfacet_size`).
+    (:func:`~.quadrature.max_subfacet_size`).  With ``vis_cell`` the split is
+    done in two levels: visibility cells of edge ``<= max(vis_cell, D_max)``,
+    each split into congruent sub-facets (that share its visibility).
 
     Parameters
     ----------
@@ -86,6 +88,10 @@ def split(tris: np.ndarray, src: np.ndarray, rcv: np.ndarray, k: float, aperture
         Array extent [m].
     opts : dict
         ``fresnel``, ``aperture_phase``, ``max_subfacet``, ``max_split``.
+    aperture_phase : float or None
+        Overrides ``opts["aperture_phase"]``.
+    vis_cell : float or None
+        Edge of the visibility cells [m]; None: every sub-facet is one.
 
     Returns
     -------
@@ -93,13 +99,28 @@ def split(tris: np.ndarray, src: np.ndarray, rcv: np.ndarray, k: float, aperture
         ``[S, 3, 3]`` sub-facets.
     parent : numpy.ndarray
         ``[S]`` index into ``tris``.
+    cells : numpy.ndarray
+        ``[C, 3, 3]`` visibility cells (``sub`` itself without ``vis_cell``).
+    cell : numpy.ndarray
+        ``[S]`` index into ``cells``.
     """
     pieces, owner = presplit(tris, src, rcv)
-    dmax = max_subfacet_size(_near(pieces, src, rcv), k, aperture_m, opts["fresnel"],
-                             opts["aperture_phase"], opts["max_subfacet"])
-    n = np.clip(np.ceil(_longest_edge(pieces) / dmax), 1, opts["max_split"]).astype(np.int64)
-    sub, piece = subdivide(pieces, n)
-    return sub, owner[piece]
+    ap = opts["aperture_phase"] if aperture_phase is None else aperture_phase
+    dmax = max_subfacet_size(_near(pieces, src, rcv), k, aperture_m, opts["fresnel"], ap,
+                             opts["max_subfacet"])
+    edge = _longest_edge(pieces)
+    n = np.clip(np.ceil(edge / dmax), 1, opts["max_split"]).astype(np.int64)
+    if vis_cell is None:
+        sub, piece = subdivide(pieces, n)
+        return sub, owner[piece], sub, np.arange(len(sub))
+    n2 = np.minimum(np.floor(vis_cell / dmax), n).astype(np.int64)     # sub-facets per cell edge
+    n1 = np.ceil(n / np.maximum(n2, 1)).astype(np.int64)
+    n2 = np.ceil(n / n1).astype(np.int64)
+    single = (n2 <= 1) | (n1 * n2 > 1.07 * n)               # no gain, or too many extra cells
+    n1, n2 = np.where(single, n, n1), np.where(single, 1, n2)
+    cells, cpiece = subdivide(pieces, n1)
+    sub, cell = subdivide(cells, n2[cpiece])
+    return sub, owner[cpiece[cell]], cells, cell
 
 
 def weights(scene, sub, face, src, rcv, k, frequency_hz, diffuse=False, rng=None):

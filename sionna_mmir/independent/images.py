@@ -70,7 +70,6 @@ def _extend(regions, src, piece: Piece):
         return []
     n = np.sign(f_src) * piece.normal
     d = np.sign(f_src) * piece.offset
-    lo, hi = np.min(piece.triangles, axis=(0, 1)), np.max(piece.triangles, axis=(0, 1))
     out = []
     for poly, faces in regions:
         poly = pg.clip(poly, n, d + _MARGIN)
@@ -78,11 +77,10 @@ def _extend(regions, src, piece: Piece):
         if len(poly) == 0:
             continue
         proj = pg.project(poly, src, piece.normal, piece.offset)
-        if np.any(proj.max(0) < lo - 1e-9) or np.any(proj.min(0) > hi + 1e-9):
+        plo, phi = proj.min(axis=0) - 1e-9, proj.max(axis=0) + 1e-9
+        if np.any(phi < piece.lo) or np.any(plo > piece.hi):
             continue
-        tmin, tmax = piece.triangles.min(axis=1), piece.triangles.max(axis=1)
-        near = np.flatnonzero(np.all(tmax >= proj.min(0) - 1e-9, axis=1)
-                              & np.all(tmin <= proj.max(0) + 1e-9, axis=1))
+        near = np.flatnonzero(np.all(piece.tri_hi >= plo, axis=1) & np.all(piece.tri_lo <= phi, axis=1))
         for t in near:
             q = pg.clip_to_triangle(proj, piece.triangles[t])
             if len(q) and pg.area(q) > pg.MIN_POLY_AREA:

@@ -132,10 +132,14 @@ class ReferencePaths:
 
 
 def _options(radar, max_depth, fresnel, aperture_phase, max_subfacet, max_split,
-             merge_fraction, merge_angle, tx_pattern, rx_pattern, min_rel_amplitude=0.0):
+             merge_fraction, merge_angle, tx_pattern, rx_pattern, min_rel_amplitude=0.0,
+             chain_aperture_phase=2.0, visibility_cell=0.05):
     if isinstance(max_depth, bool) or int(max_depth) != max_depth or not 1 <= int(max_depth) <= 3:
         raise ConfigError(f"max_depth must be 1, 2 or 3, got {max_depth!r}")
-    for name, v in (("fresnel", fresnel), ("aperture_phase", aperture_phase)):
+    if visibility_cell is not None and not (np.isfinite(visibility_cell) and visibility_cell > 0):
+        raise ConfigError(f"visibility_cell must be > 0 m or None, got {visibility_cell!r}")
+    for name, v in (("fresnel", fresnel), ("aperture_phase", aperture_phase),
+                    ("chain_aperture_phase", chain_aperture_phase)):
         if not (np.isfinite(v) and v > 0):
             raise ConfigError(f"{name} must be > 0 rad, got {v!r}")
     if max_subfacet is not None and not (np.isfinite(max_subfacet) and max_subfacet > 0):
@@ -151,7 +155,8 @@ def _options(radar, max_depth, fresnel, aperture_phase, max_subfacet, max_split,
     return {"fresnel": float(fresnel), "aperture_phase": float(aperture_phase),
             "max_subfacet": max_subfacet, "max_split": int(max_split),
             "merge_length": 2.0 * float(merge_fraction) * radar.range_resolution,
-            "merge_angle": float(merge_angle)}
+            "merge_angle": float(merge_angle), "chain_aperture_phase": float(chain_aperture_phase),
+            "visibility_cell": visibility_cell}
 
 
 def array_geometry(radar, tx_pattern="cos", rx_pattern="cos") -> ArrayGeometry:
@@ -197,7 +202,7 @@ def _single_bounce(scene, occl, array, k, freq, opts, diffuse, rng) -> Scatterer
             pattern_exponents(array.rx_pattern) is not None:
         ahead = (tri - c) @ array.rotation[:, 0]                 # radar-frame x [F, 3]
         keep = keep[ahead.max(axis=1) > 0]
-    sub, parent = facets.split(tri[keep], c, c, k, _aperture(array), opts)
+    sub, parent, _, _ = facets.split(tri[keep], c, c, k, _aperture(array), opts)
     face = keep[parent]
     x = sub.mean(axis=1)
     vis = ~occl.blocked(_offset(x, scene.normals[face], c), np.broadcast_to(c, x.shape))
@@ -212,6 +217,15 @@ def _crossing(a, b, n, d):
     return a + t[:, None] * v
 
 
+def _reflection_points(x, seq, srcs, pieces):
+    """Folded path ``[p_0, .., p_{n-2}, x]`` of a chain ending at points ``x [S, 3]``."""
+    pts = [x]
+    for m in range(len(seq) - 2, -1, -1):
+        pc = pieces[seq[m]]
+        pts.insert(0, _crossing(np.broadcast_to(srcs[m + 1], x.shape), pts[0], pc.normal, pc.offset))
+    return pts
+
+
 def _chain_bounce(chain, pieces, scene, occl, array, k, freq, opts) -> Scatterers:
     """Sub-facets of a chain's lit region, with the mirror bounces' factors."""
     c = array.centre
@@ -223,21 +237,20 @@ def _chain_bounce(chain, pieces, scene, occl, array, k, freq, opts) -> Scatterer
         tris.append(t)
         owners.append(np.tile(faces, (len(t), 1)))
     tris, owners = np.concatenate(tris), np.concatenate(owners)
-    sub, parent = facets.split(tris, srcs[-1], c, k, _aperture(array), opts)
-    owner = owners[parent]                                     # [S, n] faces
-    x = sub.mean(axis=1)
-    w, _ = facets.weights(scene, sub, owner[:, -1], srcs[-1], c, k, freq)
-    pts, nxt = [None] * (len(seq) - 1), x
-    for m in range(len(seq) - 2, -1, -1):
-        pc = pieces[seq[m]]
-        pts[m] = nxt = _crossing(np.broadcast_to(srcs[m + 1], nxt.shape), nxt, pc.normal, pc.offset)
+    sub, parent, cells, cell = facets.split(tris, srcs[-1], c, k, _aperture(array), opts,
+                                            opts["chain_aperture_phase"], opts["visibility_cell"])
+    vis_pts = _reflection_points(cells.mean(axis=1), seq, srcs, pieces)
     ends = [_offset(p, np.broadcast_to(pieces[q].normal, p.shape), np.broadcast_to(srcs[m], p.shape))
-            for m, (p, q) in enumerate(zip(pts + [x], seq))]
-    cc = np.broadcast_to(c, x.shape)
-    ok = np.ones(len(x), dtype=bool)
+            for m, (p, q) in enumerate(zip(vis_pts, seq))]
+    cc = np.broadcast_to(c, ends[0].shape)
+    vis = np.ones(len(cells), dtype=bool)
     for a, b in zip([cc] + ends, ends + [cc]):
-        ok &= ~occl.blocked(np.ascontiguousarray(a), np.ascontiguousarray(b))
-    for m, p in enumerate(pts):
+        vis &= ~occl.blocked(np.ascontiguousarray(a), np.ascontiguousarray(b))
+    ok = vis[cell]
+    sub, owner = sub[ok], owners[parent[ok]]                   # owner: [S, n] faces
+    w, _ = facets.weights(scene, sub, owner[:, -1], srcs[-1], c, k, freq)
+    pts = _reflection_points(sub.mean(axis=1), seq, srcs, pieces)
+    for m, p in enumerate(pts[:-1]):
         u = p - srcs[m]
         cos = np.abs(u @ pieces[seq[m]].normal) / np.linalg.norm(u, axis=1)
         par = scene.parameters(owner[:, m], p)
@@ -245,7 +258,7 @@ def _chain_bounce(chain, pieces, scene, occl, array, k, freq, opts) -> Scatterer
     lin, off = np.eye(3), np.zeros(3)
     for q in seq[:-1]:
         lin, off = compose(mirror_map(pieces[q]), (lin, off))
-    return Scatterers(sub[ok], w[ok], None, lin, off, depth=len(seq))
+    return Scatterers(sub, w, None, lin, off, depth=len(seq))
 
 
 def _counted(b: Scatterers, stats: dict) -> Scatterers:
@@ -256,7 +269,8 @@ def _counted(b: Scatterers, stats: dict) -> Scatterers:
 def render_reference(meshes: dict, materials: dict, radar, *, max_depth: int = 2,
                      tx_pattern="cos", rx_pattern="cos", diffuse: bool = True, seed: int = 0,
                      frequency_hz: float | None = None, fresnel: float = 0.3,
-                     aperture_phase: float = 1.0, max_subfacet: float | None = None,
+                     aperture_phase: float = 1.0, chain_aperture_phase: float = 2.0,
+                     visibility_cell: float | None = 0.05, max_subfacet: float | None = None,
                      max_split: int = 4096, merge_fraction: float = 0.1,
                      merge_angle: float = 0.05, min_rel_amplitude: float = 1e-5,
                      use_embree: bool | None = None,
@@ -288,6 +302,14 @@ def render_reference(meshes: dict, materials: dict, radar, *, max_depth: int = 2
         ADC sweep (``radar.center_frequency``).
     fresnel, aperture_phase : float
         Sub-facet phase bounds [rad] (:mod:`.quadrature`).
+    chain_aperture_phase : float
+        ``aperture_phase`` of the multi-bounce sub-facets [rad]: their strong
+        (specular, stationary-phase) parts have ``F ~ 1``, where the
+        first-order per-element correction leaves a second-order error.
+    visibility_cell : float or None
+        Multi-bounce occlusion is tested once per cell of this edge [m]
+        (shared by its sub-facets; the mirror masks are exact regardless);
+        None tests every sub-facet.  Single bounces always test every one.
     max_subfacet : float or None
         Optional cap on the sub-facet edge [m].
     max_split : int
@@ -320,7 +342,8 @@ def render_reference(meshes: dict, materials: dict, radar, *, max_depth: int = 2
     """
     t0 = time.perf_counter()
     opts = _options(radar, max_depth, fresnel, aperture_phase, max_subfacet, max_split,
-                    merge_fraction, merge_angle, tx_pattern, rx_pattern, min_rel_amplitude)
+                    merge_fraction, merge_angle, tx_pattern, rx_pattern, min_rel_amplitude,
+                    chain_aperture_phase, visibility_cell)
     freq = float(radar.center_frequency if frequency_hz is None else frequency_hz)
     if not (np.isfinite(freq) and freq > 0):
         raise ConfigError(f"frequency_hz must be > 0, got {frequency_hz!r}")

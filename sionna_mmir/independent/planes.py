@@ -37,6 +37,11 @@ class Piece:
     faces: np.ndarray
     triangles: np.ndarray
 
+    def __post_init__(self):
+        self.tri_lo = self.triangles.min(axis=1)               # [m, 3] per-triangle boxes
+        self.tri_hi = self.triangles.max(axis=1)
+        self.lo, self.hi = self.tri_lo.min(axis=0), self.tri_hi.max(axis=0)
+
     def mirror(self, points: np.ndarray) -> np.ndarray:
         """Mirror images of ``points [..., 3]`` in the piece's plane."""
         s = points @ self.normal - self.offset

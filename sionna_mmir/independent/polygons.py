@@ -33,10 +33,10 @@ def clip(poly: np.ndarray, n: np.ndarray, d: float) -> np.ndarray:
     """
     if len(poly) == 0:
         return poly
-    s = poly @ n - d
-    if np.all(s >= 0):
+    s = (poly @ n - d).tolist()
+    if min(s) >= 0:
         return poly
-    if np.all(s <= 0):
+    if max(s) <= 0:
         return poly[:0]
     out = []
     m = len(poly)
@@ -53,12 +53,9 @@ def clip(poly: np.ndarray, n: np.ndarray, d: float) -> np.ndarray:
 def triangle_halfspaces(tri: np.ndarray):
     """The three inward edge half-spaces ``[(n, d)]`` of a triangle ``[3, 3]``."""
     normal = np.cross(tri[1] - tri[0], tri[2] - tri[0])
-    out = []
-    for i in range(3):
-        a, b = tri[i], tri[(i + 1) % 3]
-        ne = np.cross(normal, b - a)
-        out.append((ne, float(ne @ a)))
-    return out
+    ne = np.cross(normal[None], np.roll(tri, -1, axis=0) - tri)
+    d = np.einsum("ik,ik->i", ne, tri)
+    return [(ne[i], float(d[i])) for i in range(3)]
 
 
 def clip_to_triangle(poly: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -86,8 +83,8 @@ def area(poly: np.ndarray) -> float:
     """Area of a planar polygon [m^2]."""
     if len(poly) < 3:
         return 0.0
-    c = np.cross(poly[1:-1] - poly[0], poly[2:] - poly[0])
-    return 0.5 * float(np.linalg.norm(c.sum(axis=0)))
+    c = np.cross(poly[1:-1] - poly[0], poly[2:] - poly[0]).sum(axis=0)
+    return 0.5 * float(np.sqrt(c @ c))
 
 
 def fan(poly: np.ndarray) -> np.ndarray:
