@@ -69,26 +69,35 @@ def test_02_plate_angular_pattern_is_sinc_squared(deg):
     assert abs(_rcs_dbsm(p, R) - 10 * np.log10(expected)) < 0.5
 
 
-def test_03_dihedral_on_bisector():
+def _split(mesh, n):
+    for _ in range(n):
+        mesh = mesh.subdivide()
+    return mesh
+
+
+@pytest.mark.parametrize("subdiv", [0, 2])
+def test_03_dihedral_on_bisector(subdiv):
     a = b = 0.1
     R = 30.0
     s2 = np.sqrt(0.5)
     O = np.array([R, 0, -b / 2])
     u1, u2, w = np.array([-s2, s2, 0]) * a, np.array([-s2, -s2, 0]) * a, np.array([0, 0, b])
-    meshes = {"a": _quad([O, O + u1, O + u1 + w, O + w]), "b": _quad([O, O + w, O + u2 + w, O + u2])}
+    meshes = {"a": _split(_quad([O, O + u1, O + u1 + w, O + w]), subdiv),
+              "b": _split(_quad([O, O + w, O + u2 + w, O + u2]), subdiv)}
     p = render_reference(meshes, {"a": "metal", "b": "metal"}, RADAR, max_depth=2, **ISO)
     expected = 10 * np.log10(8 * np.pi * a ** 2 * b ** 2 / LAM ** 2)
     assert abs(_rcs_dbsm(p, R) - expected) < 1.0
     assert _rcs_dbsm(p, R, depth=1) < expected - 20      # carried by the double bounce
 
 
-def test_04_trihedral_on_symmetry_axis():
+@pytest.mark.parametrize("subdiv", [0, 2])
+def test_04_trihedral_on_symmetry_axis(subdiv):
     a, R = 0.15, 30.0
     axis = np.ones(3) / np.sqrt(3)
     radar = RadarConfig.dense(1, 1, position=tuple(R * axis),
                               orientation=(np.radians(-135.0), np.arcsin(1 / np.sqrt(3)), 0.0))
     V = np.array([[0, 0, 0], [a, 0, 0], [0, a, 0], [0, 0, a]], float)
-    faces = {f"f{i}": trimesh.Trimesh(V, [f], process=False)
+    faces = {f"f{i}": _split(trimesh.Trimesh(V, [f], process=False), subdiv)
              for i, f in enumerate(([0, 1, 2], [0, 2, 3], [0, 3, 1]))}
     p = render_reference(faces, dict.fromkeys(faces, "metal"), radar, max_depth=3, **ISO)
     expected = 10 * np.log10(4 * np.pi * a ** 4 / (3 * LAM ** 2))

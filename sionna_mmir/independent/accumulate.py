@@ -254,6 +254,9 @@ def accumulate(batches, array: ArrayGeometry, k: float, merge_length: float = 0.
         label = group_labels(b, array.centre, merge_length, merge_angle)
         order = np.argsort(label, kind="stable")
         for a, tau in _fill(b, label[order], order, array, k):
+            if not np.isfinite(a).all():
+                raise FloatingPointError(f"non-finite path amplitudes at depth {b.depth} "
+                                         "(degenerate sub-facets?)")
             m = np.abs(a).max(axis=(0, 1))
             peak = max(peak, float(m.max()))
             keep = m >= min_rel_amplitude * peak

@@ -237,6 +237,8 @@ def _chain_bounce(chain, pieces, scene, occl, array, k, freq, opts) -> Scatterer
         tris.append(t)
         owners.append(np.tile(faces, (len(t), 1)))
     tris, owners = np.concatenate(tris), np.concatenate(owners)
+    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+    tris, owners = tris[area > polygons.MIN_POLY_AREA], owners[area > polygons.MIN_POLY_AREA]
     sub, parent, cells, cell = facets.split(tris, srcs[-1], c, k, _aperture(array), opts,
                                             opts["chain_aperture_phase"], opts["visibility_cell"])
     vis_pts = _reflection_points(cells.mean(axis=1), seq, srcs, pieces)
