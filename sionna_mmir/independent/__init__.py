@@ -11,16 +11,22 @@ physical_optics        :func:`render_reference`, :class:`ReferencePaths`: the
                        renderer (physics and its limits in its docstring)
 truth                  :func:`reference_truth`: a benchmark scene rendered to
                        a :class:`~sionna_mmir.captures.Capture`
-materials              ITU-R P.2040 permittivity, Fresnel and slab reflection
-patterns               isotropic and ``cos^q`` element gains
-mesh                   scene assembly, input checks, visibility (ray casts)
+scatterers             sub-facet sets of single bounces and image chains,
+                       with their visibility
+facets                 physical-optics weights and the split into sub-facets
+quadrature             sub-facet grids and the exact phase integral over a
+                       triangle
+accumulate             per-pair phasors, merging into paths
+images                 image-theory chains (double / triple bounce), lit
+                       regions by beam tracing
 planes                 coplanar faces grouped into planar pieces
 polygons               convex polygon clipping and central projection
-quadrature             sub-facet splitting and the exact linear-phase
-                       integral over a triangle
-images                 image-theory chains (double / triple bounce)
+materials              ITU-R P.2040 permittivity, Fresnel and slab reflection
 rough                  Rayleigh loss and the Kirchhoff rough-surface sigma0
-accumulate             per-pair phasors, merging into paths
+patterns               isotropic and ``cos^q`` element gains
+mesh                   scene assembly, input checks, visibility (ray casts)
+phasors                ``exp(j phase)`` of large float64 phase arrays
+constants              speed of light, vacuum permittivity
 =====================  ======================================================
 """
 import importlib

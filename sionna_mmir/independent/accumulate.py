@@ -33,15 +33,22 @@ The per-element differences are ``psi_i(v_m) - psi_i(x) = (u_i - u_c) .
 R^2``, below 0.02 rad for ``D = 1 cm`` at 1 m); distances and phases at the
 centroid are exact.
 
-Merging: sub-facets whose round-trip length through the array centre
-differs by less than ``merge_length`` and whose directions (unit vectors
-from the image and the real array centre) fall in the same cell of size
-``merge_angle`` become one path, with the exact per-pair delay of the
-group centroid ``x_g``; the members' phases relative to it are exact at the
-carrier ``k``.  Across the swept band ``B`` this moves a member's delay by up
-to ``delta L / c``: a phase error of at most ``pi B delta L / c`` at the
-band edges (0.16 rad for ``delta L = 6 mm`` and ``B = 2.5 GHz``), far inside
-a range bin ``c / 2B``.  ``merge_length = 0`` keeps one path per sub-facet.
+Merging (band-limited delay interpolation): sub-facets are grouped by
+direction cells of size ``merge_angle`` (each component of the unit vectors
+from the image and the real array centre).  Inside a cell the ADC term of a
+sub-facet, ``a_s exp(j 2 pi f tau_s)`` for ``f`` across the sweep, is
+interpolated in delay onto a grid of round-trip lengths ``n h``: the four
+nodes around the sub-facet's centre path length get the cubic Lagrange
+weights ``l_n(u)`` (``sum_n l_n = 1``) and carry its carrier-exact phase
+relative to the node.  A path is one (cell, node); its per-pair delay is
+``(n h + o_i + o_j) / c`` with ``o`` the cell's mean per-element offset from
+the centre path.  The result is exact at the carrier; across the band
+``B`` the interpolation error of ``exp(j omega tau)``, ``|omega| <= pi B``, is
+below ``0.023 (pi B h / c)^4`` of each sub-facet's magnitude (2e-4 for the
+default ``h = 0.1 c / B``), plus the spread of the per-element offsets in a
+cell (``< A merge_angle``).  On the benchmark hallway the merged ADC differs
+from one path per sub-facet by -54 dB of its peak, with 10x fewer paths.
+``merge_length = 0`` keeps one path per sub-facet (exact per-pair delays).
 
 Convention: ``h(f) = sum a_s exp(-j 2 pi f tau)`` (exp(+j w t), ITU-R P.2040
 / Sionna RT); the returned FMCW beat amplitudes are ``a = conj(a_s)``.
@@ -143,6 +150,8 @@ def _element_terms(points, centre, x, edges, lin, pattern, rotation, k):
         at the centroid (phase formed in float64).
     a, b : numpy.ndarray
         ``[E, S]`` float32 ``psi(v_1) - psi(v_0)`` and the same for ``v_2`` [m].
+    d : numpy.ndarray
+        ``[E, S]`` float64 element-centroid distances [m].
     """
     p = points - centre
     xr = x - centre
@@ -159,7 +168,7 @@ def _element_terms(points, centre, x, edges, lin, pattern, rotation, k):
         axes = (lin @ rotation).astype(np.float32)               # real departure, radar frame
         ux, uy = ((xr32 @ axes[:, m])[None] - (p32 @ axes[:, m])[:, None] for m in (0, 1))
         amp = amp * np.sqrt(gain_xy(pattern, ux * inv, uy * inv))
-    return amp * cis(-k * (d + diff[0]), np.complex64), diff[1], diff[2]
+    return amp * cis(-k * (d + diff[0]), np.complex64), diff[1], diff[2], d
 
 
 def _interpolation_bias(tri, x, ends):
@@ -191,28 +200,61 @@ def _group_sum(X, Y, rel):
     return out.reshape(R, len(rel), -1).transpose(2, 0, 1)
 
 
-def group_labels(b: Scatterers, centre, merge_length, merge_angle):
-    """Group index ``[S]`` (0..G-1) of every sub-facet (module docstring)."""
-    if merge_length <= 0:
-        return np.arange(len(b.tri))
+def cell_labels(b: Scatterers, centre, merge_angle) -> np.ndarray:
+    """Direction cell ``[S]`` (0..C-1) of every sub-facet (module docstring)."""
     x = b.tri.mean(axis=1)
     img = b.lin @ centre + b.off
-    v1, v2 = x - img, x - centre
-    n1, n2 = np.linalg.norm(v1, axis=1), np.linalg.norm(v2, axis=1)
-    cells = np.column_stack([np.floor(v1 / n1[:, None] / merge_angle),
-                             np.floor(v2 / n2[:, None] / merge_angle)]).astype(np.int64)
+    cells = []
+    for v in (x - img, x - centre):
+        cells.append(np.floor(v / np.linalg.norm(v, axis=1, keepdims=True) / merge_angle))
+    cells = np.column_stack(cells).astype(np.int64)
     cells -= cells.min(axis=0)
-    length = np.floor((n1 + n2) / merge_length).astype(np.int64)
-    length -= length.min()
-    bits = [int(v).bit_length() for v in cells.max(axis=0)]
-    if sum(bits) + int(length.max()).bit_length() > 62:
-        _, label = np.unique(np.column_stack([length, cells]), axis=0, return_inverse=True)
-        return label.ravel()
-    key = length
-    for col, nb in zip(cells.T, bits):
-        key = (key << nb) | col
+    key = np.zeros(len(cells), np.int64)
+    for col in cells.T:
+        key = key * (int(col.max()) + 1) + col
     _, label = np.unique(key, return_inverse=True)
     return label.ravel()
+
+
+def _lagrange(u):
+    """Cubic Lagrange weights ``[S, 4]`` of the nodes ``-1, 0, 1, 2`` at ``u`` in ``[0, 1)``."""
+    return np.stack([-u * (u - 1) * (u - 2) / 6, (u + 1) * (u - 1) * (u - 2) / 2,
+                     -(u + 1) * u * (u - 2) / 2, (u + 1) * u * (u - 1) / 6], axis=1)
+
+
+def _entries(cell, length, spacing):
+    """Node entries of sub-facets sorted by direction ``cell``.
+
+    Returns ``(member [M], weight [M], starts [G], node_length [G], group_cell [G])``:
+    each sub-facet feeds the four grid nodes around its round-trip length
+    ``length`` (grid ``spacing`` [m]) with cubic Lagrange weights; a group is
+    one (cell, node).  A compact cell (its lengths within ``spacing / 100``)
+    is one group at the cell's mean length (exact for a point-like target).
+    ``spacing <= 0``: one group per sub-facet, weight 1.
+    """
+    n = len(cell)
+    if spacing <= 0:
+        idx = np.arange(n)
+        return idx, np.ones(n), idx, length, cell
+    c_start = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+    spread = np.maximum.reduceat(length, c_start) - np.minimum.reduceat(length, c_start)
+    compact = (spread < 0.01 * spacing)[cell]
+    q = length / spacing
+    f = np.floor(q)
+    base = f.min() - 1
+    member = np.r_[np.repeat(np.flatnonzero(~compact), 4), np.flatnonzero(compact)]
+    node = np.r_[(np.repeat(f[~compact], 4) + np.tile(np.arange(-1, 3), int((~compact).sum()))
+                  - base), np.full(int(compact.sum()), -1.0)].astype(np.int64) + 1
+    weight = np.r_[_lagrange(q[~compact] - f[~compact]).ravel(), np.ones(int(compact.sum()))]
+    key = cell[member] * (int(node.max()) + 1) + node
+    order = np.argsort(key, kind="stable")
+    member, node, weight, key = member[order], node[order], weight[order], key[order]
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    node_len = (node[starts] - 1 + base) * spacing
+    mean_len = np.add.reduceat(length, c_start) / np.diff(np.r_[c_start, n])
+    g_cell = cell[member[starts]]
+    node_len = np.where(node[starts] == 0, mean_len[g_cell], node_len)
+    return member, weight, starts, node_len, g_cell
 
 
 def accumulate(batches, array: ArrayGeometry, k: float, merge_length: float = 0.0,
@@ -228,7 +270,7 @@ def accumulate(batches, array: ArrayGeometry, k: float, merge_length: float = 0.
     k : float
         Carrier wavenumber [rad/m].
     merge_length : float
-        Round-trip length cell [m]; 0 disables merging.
+        Delay-grid spacing ``h`` in round-trip length [m]; 0 disables merging.
     merge_angle : float
         Direction cell (of each unit-vector component).
     min_rel_amplitude : float
@@ -251,9 +293,9 @@ def accumulate(batches, array: ArrayGeometry, k: float, merge_length: float = 0.
     for b in batches:
         if not len(b.tri):
             continue
-        label = group_labels(b, array.centre, merge_length, merge_angle)
+        label = cell_labels(b, array.centre, merge_angle)
         order = np.argsort(label, kind="stable")
-        for a, tau in _fill(b, label[order], order, array, k):
+        for a, tau in _fill(b, label[order], order, array, k, merge_length):
             if not np.isfinite(a).all():
                 raise FloatingPointError(f"non-finite path amplitudes at depth {b.depth} "
                                          "(degenerate sub-facets?)")
@@ -269,8 +311,8 @@ def accumulate(batches, array: ArrayGeometry, k: float, merge_length: float = 0.
     return a, tau, np.concatenate([p[2] for p in parts])[keep]
 
 
-def _fill(b, lab, order, array, k):
-    """Paths of one batch (sorted by group label), per chunk of groups: ``(a, tau)``."""
+def _fill(b, lab, order, array, k, spacing):
+    """Paths of one batch (sorted by direction cell), per chunk of cells: ``(a, tau)``."""
     starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
     n = len(lab)
     cuts = np.unique(np.searchsorted(starts, np.arange(0, n, _CHUNK), side="right") - 1)
@@ -283,12 +325,13 @@ def _fill(b, lab, order, array, k):
         tri = b.tri[idx]
         x = tri.mean(axis=1)
         edges = np.stack([tri[:, 0] - x, tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]])
-        e_t, a_t, b_t = _element_terms(tx_img, c_img, x, edges, b.lin, array.tx_pattern,
-                                       array.rotation, k)
-        e_r, a_r, b_r = _element_terms(array.rx, array.centre, x, edges, np.eye(3),
-                                       array.rx_pattern, array.rotation, k)
+        e_t, a_t, b_t, d_t = _element_terms(tx_img, c_img, x, edges, b.lin, array.tx_pattern,
+                                            array.rotation, k)
+        e_r, a_r, b_r, d_r = _element_terms(array.rx, array.centre, x, edges, np.eye(3),
+                                            array.rx_pattern, array.rotation, k)
         pts = np.concatenate([tri, x[:, None]], axis=1)                        # [S, 4, 3]
-        lc = (np.linalg.norm(pts - c_img, axis=2) + np.linalg.norm(pts - array.centre, axis=2))
+        d_img, d_c = np.linalg.norm(pts - c_img, axis=2), np.linalg.norm(pts - array.centre, axis=2)
+        lc = d_img + d_c
         E, E1, E2 = simplex_exp_grad(k * (lc[:, 1] - lc[:, 0]), k * (lc[:, 2] - lc[:, 0]))
         E, E1, E2 = E.astype(np.complex64), (-1j * k * E1).astype(np.complex64), \
             (-1j * k * E2).astype(np.complex64)
@@ -296,9 +339,19 @@ def _fill(b, lab, order, array, k):
         w = (2.0 * b.w_coh[idx] * cis(-k * (lc[:, 0] - lc[:, 3] + bias))).astype(np.complex64)
         wd = 0 if b.w_diff is None else b.w_diff[idx].astype(np.complex64)
         x_t = e_t * (w * (E + a_t * E1 + b_t * E2) + wd)
-        rel = starts[c0:c1] - starts[c0]
-        s = _group_sum(x_t, e_r, rel) + _group_sum(e_t * w, e_r * (a_r * E1 + b_r * E2), rel)
-        xg = np.add.reduceat(x, rel, axis=0) / np.diff(np.r_[rel, len(idx)])[:, None]
-        dt, dr = _dist(tx_img, xg), _dist(array.rx, xg)                         # [T, g], [R, g]
-        path = dt[:, None] + dr[None]                                             # [T, R, g]
+        y_r = e_r * (a_r * E1 + b_r * E2)
+        z_t = e_t * w
+        cell = lab[starts[c0]:s1] - lab[starts[c0]]
+        member, weight, rel, node_len, g_cell = _entries(cell, lc[:, 3], spacing)
+        wgt = weight.astype(np.float32)
+        s = (_group_sum(x_t[:, member] * wgt, e_r[:, member], rel)
+             + _group_sum(z_t[:, member] * wgt, y_r[:, member], rel))
+        # per-element offsets from the centre path, averaged per cell (per sub-facet unmerged)
+        o_t, o_r = d_t - d_img[:, 3], d_r - d_c[:, 3]
+        if spacing > 0:
+            c_rel = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+            cnt = np.diff(np.r_[c_rel, len(cell)])
+            o_t = (np.add.reduceat(o_t, c_rel, axis=1) / cnt)[:, g_cell]
+            o_r = (np.add.reduceat(o_r, c_rel, axis=1) / cnt)[:, g_cell]
+        path = node_len[None, None] + o_t[:, None] + o_r[None]                    # [T, R, g]
         yield np.conj(s * cis(k * path)), path / C0

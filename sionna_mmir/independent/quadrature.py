@@ -1,4 +1,4 @@
-"""Sub-facet splitting and the exact linear-phase integral over a triangle.
+"""Sub-facet grids and the exact integral of a linear phase over a triangle.
 
 A triangle of longest edge ``D`` is split into ``n^2`` congruent
 sub-triangles (the barycentric grid of step ``1/n``) with
@@ -10,15 +10,18 @@ sub-triangles (the barycentric grid of step ``1/n``) with
 corner and ``A = max|tx - c| + max|rx - c|`` the array's extent about its
 centre ``c``.  The first bound keeps the quadratic (Fresnel) phase
 ``k D^2 / R`` of a sub-facet below ``fresnel`` rad, the second the change of
-the linear phase gradient between array elements across it below
-``aperture`` rad.  The remaining linear phase is integrated exactly
-(Gordon, IEEE Trans. AP-23, 1975, in divided-difference form)::
+the phase gradient between array elements across it below ``aperture`` rad.
 
-    F = (1/A_t) int_t exp(-j q.(y - x)) dA(y) = 2 exp(-j q.(P0 - x)) exp[0, -j a, -j b]
+On each sub-facet the path length is replaced by its linear interpolant
+between the three corners, whose phase integrates exactly (Gordon, IEEE
+Trans. AP-23, 1975, here in divided-difference form)::
 
-with ``a = q.(P1 - P0)``, ``b = q.(P2 - P0)`` and ``exp[z0, z1, z2]`` the
-second divided difference of ``exp`` (Hermite-Genocchi:
-``int_simplex exp(u z1 + v z2) du dv``).  ``x`` is the sub-facet centroid.
+    (1/A_t) int_t exp(-j k L_lin(y)) dA(y) = 2 exp(-j k L(v_0)) exp[0, -j t_1, -j t_2],
+    t_m = k (L(v_m) - L(v_0)),
+
+with ``exp[z0, z1, z2]`` the second divided difference of ``exp``
+(Hermite-Genocchi: ``int_{u, v >= 0, u + v <= 1} exp(u z1 + v z2) du dv``),
+evaluated with series near coincident nodes.
 """
 from __future__ import annotations
 
@@ -177,25 +180,3 @@ def simplex_exp_grad(t1, t2, h: float = 1e-4):
     d1 = (_simplex(t1 - h, m1, t2, a2) - _simplex(t1 + h, p1, t2, a2)) / (2j * h)
     d2 = (_simplex(t1, a1, t2 - h, m2) - _simplex(t1, a1, t2 + h, p2)) / (2j * h)
     return e, d1, d2
-
-
-def triangle_phase_average(q: np.ndarray, tri: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``(1/A) int_t exp(-j q.(y - x)) dA(y)`` over triangles (module docstring).
-
-    Parameters
-    ----------
-    q : numpy.ndarray
-        ``[S, 3]`` phase gradient [rad/m].
-    tri : numpy.ndarray
-        ``[S, 3, 3]`` triangle corners [m].
-    x : numpy.ndarray
-        ``[S, 3]`` phase reference point [m].
-
-    Returns
-    -------
-    numpy.ndarray
-        ``[S]`` complex128, ``|F| <= 1``.
-    """
-    t1 = np.einsum("sk,sk->s", q, tri[:, 1] - tri[:, 0])
-    t2 = np.einsum("sk,sk->s", q, tri[:, 2] - tri[:, 0])
-    return 2.0 * np.exp(-1j * np.einsum("sk,sk->s", q, tri[:, 0] - x)) * simplex_exp(t1, t2)

@@ -25,7 +25,7 @@ def _true_material(spec, name: str, seed: int):
     return lambda points: true_vertex_materials(spec, name, points, seed)
 
 
-def reference_truth(spec, radar=None, seed: int = 0, *, max_depth: int = 2,
+def reference_truth(spec, radar=None, seed: int = 0, *, max_depth: int = 3,
                     noise_db: float = -40.0, true_materials: bool = True, **options):
     """A :class:`~sionna_mmir.captures.Capture` of catalog scene ``spec``.
 
@@ -40,7 +40,8 @@ def reference_truth(spec, radar=None, seed: int = 0, *, max_depth: int = 2,
         Material seed (as the benchmark truth), seed of the rough-surface
         phases and of the receiver noise.
     max_depth : int
-        Surface interactions (1-3; depth 3 costs several times depth 2).
+        Surface interactions (1-3; the benchmark truth uses 3, which costs
+        about three times depth 2).
     noise_db : float
         Receiver noise power per complex sample relative to the peak ADC
         sample power [dB].
