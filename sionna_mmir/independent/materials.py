@@ -22,10 +22,15 @@ has ``r_s = r_p = -1`` at every angle.  Slab of thickness ``d`` in air
 
     q = (2 pi d / lambda) a,     R = r (1 - e^{-j 2q}) / (1 - r^2 e^{-j 2q})
 
-Polarisation is reduced to one co-polarised coefficient per bounce,
-``Gamma = (R_s + R_p) / 2``: the co-polar reflection of a linear
-polarisation at 45 deg to the plane of incidence; exact at normal incidence
-and for perfect conductors.  Depolarisation across bounces is not modelled.
+Polarisation is reduced to a scalar: every bounce multiplies the field by
+``Gamma = (R_s + R_p) / 2``, the mean of the two eigen-polarisations (for a
+single bounce, the co-polar reflection of a linear polarisation at 45 deg to
+the plane of incidence).  It is exact at normal incidence, and for perfect
+conductors ``|Gamma| = 1`` at every angle, which reproduces the co-polar
+RCS of plates, of dihedrals (polarisation parallel or perpendicular to the
+fold) and of trihedrals.  Not modelled: polarisation rotation between
+bounces (e.g. the cross-polar return of a dihedral at 45 deg), the opposite
+signs of HH and VV for even bounces, the element polarisation.
 """
 from __future__ import annotations
 

@@ -47,7 +47,8 @@ amplitude), times ``sqrt(G_t G_r)`` with element gains.
 
 Limits
 ------
-Scalar co-polar model (no depolarisation, no cross-polar channel); no
+Scalar co-polar model (:mod:`.materials`: no depolarisation, no
+cross-polar channel, no HH/VV sign difference of even bounces); no
 transmission through walls, no edge diffraction beyond what physical optics
 itself produces at plate edges, no creeping waves; multiple bounces only
 between planar pieces (curved, faceted objects take part with their flat
