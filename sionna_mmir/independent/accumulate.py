@@ -191,11 +191,16 @@ def _interpolation_bias(tri, x, ends):
     return -acc / 24.0
 
 
-def _group_sum(X, Y, rel):
-    """``out[i, j, g] = sum_{s in g} X[i, s] Y[j, s]`` for contiguous groups starting at ``rel``."""
-    R, n = Y.shape
+def _group_sum(X, Y, rel, member, weight):
+    """``out[i, j, g] = sum_{e in g} weight[e] X[i, m_e] Y[j, m_e]``, ``m_e = member[e]``.
+
+    Entries ``e`` are sorted by group, groups start at ``rel``; one sparse
+    ``[R G, S] x [S, T]`` product (``R x entries`` non-zeros).
+    """
+    R, n = Y.shape[0], len(member)
     indptr = np.r_[(np.arange(R)[:, None] * n + rel[None, :]).ravel(), R * n]
-    B = sparse.csr_matrix((Y.ravel(), np.tile(np.arange(n), R), indptr), shape=(R * len(rel), n))
+    data = (Y[:, member] * weight).ravel()
+    B = sparse.csr_matrix((data, np.tile(member, R), indptr), shape=(R * len(rel), X.shape[1]))
     out = B @ np.ascontiguousarray(X.T)                           # [R * G, T]
     return out.reshape(R, len(rel), -1).transpose(2, 0, 1)
 
@@ -344,8 +349,7 @@ def _fill(b, lab, order, array, k, spacing):
         cell = lab[starts[c0]:s1] - lab[starts[c0]]
         member, weight, rel, node_len, g_cell = _entries(cell, lc[:, 3], spacing)
         wgt = weight.astype(np.float32)
-        s = (_group_sum(x_t[:, member] * wgt, e_r[:, member], rel)
-             + _group_sum(z_t[:, member] * wgt, y_r[:, member], rel))
+        s = _group_sum(x_t, e_r, rel, member, wgt) + _group_sum(z_t, y_r, rel, member, wgt)
         # per-element offsets from the centre path, averaged per cell (per sub-facet unmerged)
         o_t, o_r = d_t - d_img[:, 3], d_r - d_c[:, 3]
         if spacing > 0:
