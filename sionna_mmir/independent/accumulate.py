@@ -287,7 +287,8 @@ def accumulate(batches, array: ArrayGeometry, k: float, merge_length: float = 0.
     Returns
     -------
     a : numpy.ndarray
-        ``[T, R, P]`` complex128 FMCW beat amplitudes ``conj(a_s)``.
+        ``[T, R, P]`` complex64 FMCW beat amplitudes ``conj(a_s)`` (the
+        carrier phase lives in ``tau``; ~1e-7 relative precision).
     tau : numpy.ndarray
         ``[T, R, P]`` float64 delays [s].
     depth : numpy.ndarray
@@ -309,11 +310,13 @@ def accumulate(batches, array: ArrayGeometry, k: float, merge_length: float = 0.
             keep = m >= min_rel_amplitude * peak
             parts.append((a[..., keep], tau[..., keep], np.full(int(keep.sum()), b.depth), m[keep]))
     if not parts:
-        return np.zeros((T, R, 0), np.complex128), np.zeros((T, R, 0)), np.zeros(0, np.int64)
-    keep = np.concatenate([p[3] for p in parts]) >= min_rel_amplitude * peak
-    a = np.concatenate([p[0] for p in parts], axis=2)[..., keep]
-    tau = np.concatenate([p[1] for p in parts], axis=2)[..., keep]
-    return a, tau, np.concatenate([p[2] for p in parts])[keep]
+        return np.zeros((T, R, 0), np.complex64), np.zeros((T, R, 0)), np.zeros(0, np.int64)
+    thr = min_rel_amplitude * peak
+    depth = np.concatenate([p[2][p[3] >= thr] for p in parts])
+    a = np.concatenate([p[0] if p[3].min() >= thr else p[0][..., p[3] >= thr] for p in parts], axis=2)
+    parts = [(p[1], p[3]) for p in parts]                            # release the chunks of a
+    tau = np.concatenate([t if m.min() >= thr else t[..., m >= thr] for t, m in parts], axis=2)
+    return a, tau, depth
 
 
 def _fill(b, lab, order, array, k, spacing):
@@ -358,4 +361,4 @@ def _fill(b, lab, order, array, k, spacing):
             o_t = (np.add.reduceat(o_t, c_rel, axis=1) / cnt)[:, g_cell]
             o_r = (np.add.reduceat(o_r, c_rel, axis=1) / cnt)[:, g_cell]
         path = node_len[None, None] + o_t[:, None] + o_r[None]                    # [T, R, g]
-        yield np.conj(s * cis(k * path)), path / C0
+        yield np.conj(s * cis(k * path)).astype(np.complex64), path / C0

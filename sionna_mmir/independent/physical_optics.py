@@ -96,8 +96,8 @@ class ReferencePaths:
     Attributes
     ----------
     a : numpy.ndarray
-        ``[T, R, P]`` complex128 FMCW beat amplitudes (``conj`` of the
-        channel coefficients).
+        ``[T, R, P]`` complex64 FMCW beat amplitudes (``conj`` of the
+        channel coefficients; the carrier phase is in ``tau``).
     tau : numpy.ndarray
         ``[T, R, P]`` float64 delays [s].
     depth : numpy.ndarray
