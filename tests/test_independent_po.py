@@ -373,3 +373,22 @@ def test_19_simplex_exponential_matches_quadrature():
     c = sub.mean(axis=1)
     num = np.array([np.mean(np.exp(-1j * (a * c[:, 0] + b * c[:, 1]))) / 2 for a, b in zip(t1, t2)])
     np.testing.assert_allclose(simplex_exp(t1, t2), num, atol=1e-5)
+
+
+def test_20_pruning_drops_only_weak_paths(monkeypatch):
+    """A 1 cm plate next to a 0.5 m plate: its paths fall below -40 dB and go, whole chunks too."""
+    from sionna_mmir.independent import accumulate
+
+    monkeypatch.setattr(accumulate, "_CHUNK", 64)           # many chunks, some entirely weak
+    plates = {"big": square_plate([3.0, 0.0, 0.0], 0.5), "left": square_plate([6.0, 1.0, 0.5], 0.01),
+              "right": square_plate([6.0, -1.0, -0.5], 0.01)}
+    mats = dict.fromkeys(plates, "metal")
+    full = render_reference(plates, mats, RADAR, max_depth=2, min_rel_amplitude=0.0, **ISO)
+    for rel in (1e-3, 0.2):                                  # 0.2 empties whole chunks
+        pruned = render_reference(plates, mats, RADAR, max_depth=2, min_rel_amplitude=rel, **ISO)
+        assert 0 < pruned.num_paths < full.num_paths
+        kept = np.abs(pruned.a).max(axis=(0, 1))
+        assert kept.min() >= rel * np.abs(full.a).max() * (1 - 1e-5)
+    pruned = render_reference(plates, mats, RADAR, max_depth=2, min_rel_amplitude=1e-3, **ISO)
+    h_full, h_pruned = full.coherent_sum(FC), pruned.coherent_sum(FC)
+    assert np.abs(h_full - h_pruned).max() < 0.05 * np.abs(h_full).max()

@@ -308,7 +308,8 @@ def accumulate(batches, array: ArrayGeometry, k: float, merge_length: float = 0.
             m = np.abs(a).max(axis=(0, 1))
             peak = max(peak, float(m.max()))
             keep = m >= min_rel_amplitude * peak
-            parts.append((a[..., keep], tau[..., keep], np.full(int(keep.sum()), b.depth), m[keep]))
+            if keep.any():
+                parts.append((a[..., keep], tau[..., keep], np.full(int(keep.sum()), b.depth), m[keep]))
     if not parts:
         return np.zeros((T, R, 0), np.complex64), np.zeros((T, R, 0)), np.zeros(0, np.int64)
     thr = min_rel_amplitude * peak
