@@ -23,14 +23,18 @@ has ``r_s = r_p = -1`` at every angle.  Slab of thickness ``d`` in air
     q = (2 pi d / lambda) a,     R = r (1 - e^{-j 2q}) / (1 - r^2 e^{-j 2q})
 
 Polarisation is reduced to a scalar: every bounce multiplies the field by
-``Gamma = (R_s + R_p) / 2``, the mean of the two eigen-polarisations (for a
-single bounce, the co-polar reflection of a linear polarisation at 45 deg to
-the plane of incidence).  It is exact at normal incidence, and for perfect
-conductors ``|Gamma| = 1`` at every angle, which reproduces the co-polar
-RCS of plates, of dihedrals (polarisation parallel or perpendicular to the
-fold) and of trihedrals.  Not modelled: polarisation rotation between
-bounces (e.g. the cross-polar return of a dihedral at 45 deg), the opposite
-signs of HH and VV for even bounces, the element polarisation.
+the unpolarised reflection amplitude with the TE phase::
+
+    Gamma = sqrt((|R_s|^2 + |R_p|^2) / 2) * R_s / |R_s|
+
+(the r.m.s. of the two eigen-polarisations: the field amplitude that carries
+the mean reflected power of an unpolarised wave).  It equals ``r`` at normal
+incidence, ``-1`` for perfect conductors at every angle (which reproduces the
+co-polar RCS of plates, dihedrals and trihedrals) and tends to magnitude 1
+at grazing incidence like both eigen-coefficients.  Not modelled: the
+polarisation of the elements, polarisation rotation between bounces (e.g.
+the cross-polar return of a dihedral at 45 deg), the opposite signs of HH
+and VV for even bounces, the phase difference between ``R_s`` and ``R_p``.
 """
 from __future__ import annotations
 
@@ -153,7 +157,7 @@ def slab_reflection(cos_theta, eps_r, thickness, frequency_hz):
 
 
 def copol_reflection(cos_theta, params, frequency_hz):
-    """Co-polarised reflection ``(R_s + R_p) / 2`` of the slab model.
+    """Scalar reflection ``Gamma`` of the slab model (module docstring).
 
     Parameters
     ----------
@@ -167,11 +171,13 @@ def copol_reflection(cos_theta, params, frequency_hz):
     Returns
     -------
     numpy.ndarray
-        ``[N]`` complex128.
+        ``[N]`` complex128, ``sqrt((|R_s|^2 + |R_p|^2) / 2) R_s / |R_s|``.
     """
     eps = params[:, 0] - 1j * params[:, 1]
     R_s, R_p = slab_reflection(cos_theta, eps, params[:, 5], frequency_hz)
-    return 0.5 * (R_s + R_p)
+    mag_s = np.abs(R_s)
+    phase = np.where(mag_s > 0, R_s / np.where(mag_s > 0, mag_s, 1.0), -1.0)
+    return np.sqrt(0.5 * (mag_s ** 2 + np.abs(R_p) ** 2)) * phase
 
 
 def material_function(spec, name: str, frequency_hz: float, allow_out_of_band: bool = False):

@@ -22,8 +22,9 @@ amplitude), times ``sqrt(G_t G_r)`` with element gains.
    sub-facet contributes ``(j / 4 pi) Gamma c_po rho A F sqrt(G_t G_r) /
    (d_i d_j)`` with **exact per-pair distances** ``d_i = |x - tx_i|``,
    ``d_j = |x - rx_j|`` and delay ``tau_ij = (d_i + d_j) / c``, Kirchhoff
-   obliquity ``c_po = (cos_in + cos_t) / 2``, co-polar slab / half-space
-   reflection ``Gamma = (R_s + R_p) / 2`` of ITU-R P.2040 materials
+   obliquity ``c_po = (cos_in + cos_t) / 2``, the unpolarised slab /
+   half-space reflection ``Gamma = sqrt((|R_s|^2 + |R_p|^2) / 2) R_s / |R_s|``
+   of ITU-R P.2040 materials
    (:mod:`.materials`) and element patterns (:mod:`.patterns`).  It counts
    only when its centroid sees the array centre (ray cast).
 2. **Double and triple bounce** -- image theory on planar pieces
@@ -47,8 +48,9 @@ amplitude), times ``sqrt(G_t G_r)`` with element gains.
 
 Limits
 ------
-Scalar co-polar model (:mod:`.materials`: no depolarisation, no
-cross-polar channel, no HH/VV sign difference of even bounces); no
+Scalar model of polarisation (:mod:`.materials`: no element polarisation,
+no depolarisation or cross-polar channel, no HH/VV sign difference of even
+bounces); no
 transmission through walls, no edge diffraction beyond what physical optics
 itself produces at plate edges, no creeping waves; multiple bounces only
 between planar pieces (curved, faceted objects take part with their flat
