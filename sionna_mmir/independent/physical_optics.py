@@ -119,11 +119,18 @@ class ReferencePaths:
         """Number of paths ``P``."""
         return int(self.a.shape[2])
 
-    def adc(self, radar) -> np.ndarray:
-        """Raw ADC ``[T, R, chirps, samples]`` complex64 via :func:`sionna_mmir.fmcw.synthesize_adc`."""
+    def adc(self, radar, chunk: int = 32_768) -> np.ndarray:
+        """Raw ADC ``[T, R, chirps, samples]`` complex64 via :func:`sionna_mmir.fmcw.synthesize_adc`.
+
+        The synthesis is linear in the paths; it runs over ``chunk`` paths at
+        a time to bound its working memory.
+        """
         from ..fmcw import synthesize_adc
 
-        return synthesize_adc(radar, self.a, self.tau)
+        out = np.zeros(radar.adc_shape, np.complex128)
+        for s in range(0, self.num_paths, chunk):
+            out += synthesize_adc(radar, self.a[..., s:s + chunk], self.tau[..., s:s + chunk])
+        return out.astype(np.complex64)
 
     def coherent_sum(self, frequency_hz: float, depth=None) -> np.ndarray:
         """Beat-convention channel ``sum_p a exp(j 2 pi f tau)`` ``[T, R]`` at one frequency.
