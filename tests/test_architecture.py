@@ -31,9 +31,9 @@ LAYERS = {
     "fmcw": 3, "processing": 3,
     "captures": 4, "plotting": 4,
     "scene": 5, "scaffold": 5,
-    "paths": 6, "independent": 6,
+    "paths": 6,
     "effects": 7, "baseline": 7, "benchmark_scenes": 7, "occupancy": 7,
-    "fit": 8, "residual": 8, "dataset": 8,
+    "fit": 8, "residual": 8, "dataset": 8, "independent": 8,
     "pipeline": 9, "compare": 9,
     "cli": 10, "__main__": 10,
 }

@@ -745,3 +745,11 @@ def _name_key(name: str) -> int:
     import zlib
 
     return zlib.crc32(name.encode("utf-8"))
+
+
+def scene_radar(spec, num_chirps: int = 1):
+    """The cascade radar at the scene's pose."""
+    from ..radar.config import RadarConfig
+
+    return RadarConfig.mmwcas(num_chirps=num_chirps, position=tuple(spec.radar_position),
+                              orientation=tuple(spec.radar_orientation))

@@ -9,15 +9,9 @@ this except the capture.
 """
 from __future__ import annotations
 
+from ..benchmark_scenes.catalog import scene_radar  # noqa: F401  (re-export)
+
 import numpy as np
-
-
-def scene_radar(spec, num_chirps: int = 1):
-    """The cascade radar at the scene's pose."""
-    from ..radar.config import RadarConfig
-
-    return RadarConfig.mmwcas(num_chirps=num_chirps, position=tuple(spec.radar_position),
-                              orientation=tuple(spec.radar_orientation))
 
 
 def render_ground_truth(spec, *, seed: int = 0, num_rays: int = 100_000, max_depth: int = 3,

@@ -2,19 +2,25 @@
 
 ``report.json`` keys:
 
-``first``           metrics of the base model (fitted scene, refined per object
-                    and pose in the ADC domain), before any diagnosis
-``final``           metrics after every adoption
-``scene_mismatch``  what the scene refit absorbed: per-object gains, radar pose
-                    offset and every adopted scene-side effect
-``adoptions``       per adopted effect: ``name``, ``side`` (scene / sensor),
-                    ``verdict``, ``before``, ``after``, ``unexplained`` (the
-                    residual's excess over the noise floor after it), its
-                    parameters and the ranking that chose it
-``unexplained``     where the final residual exceeds the noise floor
-                    (range / beat frequency, channels, chirps, samples)
-``stop_reason``     why the diagnosis ended
-``timings``         seconds per stage
+``first``
+    metrics of the base model (fitted scene, refined per object and pose in
+    the ADC domain), before any diagnosis
+``final``
+    metrics after every adoption
+``scene_mismatch``
+    what the scene refit absorbed: per-object gains, radar pose offset and
+    every adopted scene-side effect
+``adoptions``
+    per adopted effect: ``name``, ``side`` (scene / sensor), ``verdict``,
+    ``before``, ``after``, ``unexplained`` (the residual's excess over the
+    noise floor after it), its parameters and the ranking that chose it
+``unexplained``
+    where the final residual exceeds the noise floor (range / beat
+    frequency, channels, chirps, samples)
+``stop_reason``
+    why the diagnosis ended
+``timings``
+    seconds per stage
 
 Metrics (:func:`sionna_mmir.residual.scoring.score`): RA correlation, PSNR,
 RMSE, ADC log-magnitude MSE, residual energy [dB re. the capture].

@@ -1,4 +1,4 @@
-"""``residual`` report: JSON, Markdown and PNGs of a :class:`~.diagnosis.Diagnosis`.
+"""``residual`` report: JSON, Markdown and PNGs of a :class:`~sionna_mmir.residual.diagnosis.Diagnosis`.
 
 Folder layout (written to ``<out>.partial`` and renamed, so a failed run
 leaves nothing; an existing report is never replaced without ``overwrite``):
