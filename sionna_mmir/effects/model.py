@@ -423,8 +423,9 @@ class EffectModel:
             tens = self._tensors(grad_keys=key_set)
             loss = self.loss(tens, mask, n, frozen)
             dr.backward(loss)
-            grad = np.concatenate([np.asarray(dr.grad(tens[key]), np.float64).ravel()
-                                   for key in keys])
+            grads = [dr.grad(tens[key]) for key in keys]
+            dr.eval(loss, *grads)                    # one kernel for the loss and every gradient
+            grad = np.concatenate([np.asarray(g, np.float64).ravel() for g in grads])
             val = ops.item(loss)
             if not np.isfinite(val):
                 return 1e30, np.zeros_like(vec)

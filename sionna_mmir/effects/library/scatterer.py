@@ -280,8 +280,8 @@ class MissingScatterer(Effect):
 
     name = "missing_scatterer"
     #: a repeatable scene detail is adopted only while it explains this much
-    #: (nats per held-out sample): clutter is not a list of missing scatterers
-    min_gain_per_sample = 0.01
+    #: (nats per held-out sample): diffuse clutter is not a list of missing scatterers
+    min_gain_per_sample = 0.1
     kind = "mean"
     stage = 0
     repeatable = True
