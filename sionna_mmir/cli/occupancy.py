@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..paths.options import SolverOptions
 from .args import (FORMATTER, add_materials, add_out, add_pose, add_scaffold, add_solver,
-                   check_new, mesh_names, named, pose, scaffold_options, solver_options)
+                   mesh_names, named, pose, scaffold_options, solver_options)
 
 
 def add_parser(sub) -> None:
@@ -22,7 +22,7 @@ def add_parser(sub) -> None:
                                          "from a dense virtual array, scored against a clean mesh",
                        formatter_class=FORMATTER)
     p.add_argument("meshes", nargs="+", help="PLY/OBJ scene meshes (object name = file stem)")
-    add_out(p, "output folder (points.ply, metrics.json, occupancy.png)")
+    add_out(p, "output folder (points.ply, metrics.json, occupancy.png)", kind="folder")
     p.add_argument("--truth", action="append", metavar="MESH",
                    help="clean reference mesh(es), repeatable (default: the scene meshes)")
     add_materials(p)
@@ -85,7 +85,6 @@ def run(args) -> int:
     from ..scaffold import prepare_scaffold
     from ..scene import load_scene
 
-    check_new(args.out, args.overwrite)
     radar = _dense_radar(args)
     names = mesh_names(args.meshes)
     truth = mesh_names(args.truth) if args.truth else names

@@ -23,7 +23,7 @@ def add_parser(sub) -> None:
     p.add_argument("--model", required=True,
                    help="base model: HDF5 capture of the fitted render, 'static' (mean over "
                         "frames) or 'none'")
-    add_out(p, "report folder")
+    add_out(p, "report folder", kind="folder")
     p.add_argument("--frames", default=None, metavar="A:B",
                    help="frame range of multi-frame captures (default: all)")
     p.add_argument("--calib-dir", default=None, help="ColoRadar calib folder")
