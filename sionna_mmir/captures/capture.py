@@ -106,7 +106,8 @@ class Capture:
         """A one-frame :class:`Capture` holding frame ``index``."""
         n = self.num_frames
         if not -n <= int(index) < n:
-            raise FrameIndexError(f"Capture ({self.source}) has {n} frames; frame {index} requested")
+            raise FrameIndexError(f"Capture ({self.source}) has {n} frames; "
+                                  f"frame {index} requested")
         meta = dict(self.metadata, frame_index=int(index) % n)
         return Capture(self.frames[index][None], self.radar, meta, self.source, self.extras)
 

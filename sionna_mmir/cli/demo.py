@@ -20,7 +20,9 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..compare.demo import run_demo
+    from .args import positive
 
+    positive(args.iterations, "--iterations", minimum=0)
     summary = run_demo(capture=args.capture, out=args.out, overwrite=args.overwrite,
                        fit_iterations=args.iterations)
     short = {k: v for k, v in summary.items() if k != "fit"}

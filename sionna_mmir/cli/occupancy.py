@@ -78,6 +78,21 @@ def _dense_radar(args):
     return radar
 
 
+def _check_processing(args, radar) -> None:
+    """The processing settings, refused before the (long) render."""
+    checks = (("--percentile", 0 <= args.percentile < 100, "in [0, 100)"),
+              ("--tau", args.tau > 0, "> 0"), ("--points-per-m2", args.points_per_m2 > 0, "> 0"),
+              ("--dynamic-range-db", args.dynamic_range_db > 0, "> 0"),
+              ("--n-azimuth", args.n_azimuth >= radar.num_rx,
+               f">= the {radar.num_rx} azimuth elements"),
+              ("--n-elevation", args.n_elevation >= radar.num_tx,
+               f">= the {radar.num_tx} elevation elements"))
+    for flag, ok, what in checks:
+        if not ok:                                  # NaN fails every comparison
+            value = getattr(args, flag[2:].replace("-", "_"))
+            raise ConfigError(f"{flag} must be {what}, got {value}")
+
+
 def run(args) -> int:
     from ..compare.workflow import read_meshes as read_mesh_files
     from ..fit.fitted import load_fitted_scene
@@ -86,6 +101,7 @@ def run(args) -> int:
     from ..scene import load_scene
 
     radar = _dense_radar(args)
+    _check_processing(args, radar)
     names = mesh_names(args.meshes)
     truth = mesh_names(args.truth) if args.truth else names
     read_meshes(truth)

@@ -65,8 +65,6 @@ def run(args) -> int:
     from ..residual.base_model import base_model
     from ..residual.report import write_report
 
-    if os.path.exists(args.out) and not args.overwrite:
-        raise FileExistsError(f"{args.out}: a report is already there (use --overwrite)")
     if args.folds < 2:
         raise ConfigError(f"--folds must be >= 2, got {args.folds}")
     if args.max_rounds < 0:
