@@ -28,11 +28,13 @@ C = 299_792_458.0
 
 
 def _err(capsys) -> str:
-    """stderr of the last command, checked to be one clear line and no traceback."""
+    """stderr of the last command (after any progress bar), checked to be one
+    clear line and no traceback."""
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and "Traceback" not in err, err
-    assert "internal error" not in err, err
-    return err
+    assert "Traceback" not in err and "internal error" not in err, err
+    last = err.split("\r")[-1]
+    assert last.startswith("error: ") and last.count("\n") == 1, err
+    return last
 
 
 def _refused(capsys, argv, *words) -> str:
@@ -182,6 +184,21 @@ def test_03_disk_full_leaves_nothing_and_names_the_target(tmp_path, monkeypatch,
     assert sorted(os.listdir(tmp_path)) == ["c.h5"]
 
 
+def test_03b_disk_full_in_a_report_folder(tmp_path, inputs, monkeypatch, capsys):
+    from sionna_mmir.residual import report
+
+    def full(path, mode="r", *a, **k):
+        if str(path).endswith("residual.json"):
+            raise OSError(errno.ENOSPC, "No space left on device", path)
+        return open(path, mode, *a, **k)
+
+    monkeypatch.setattr(report, "open", full, raising=False)
+    out = tmp_path / "rep"
+    _refused(capsys, ["residual", inputs["multi"], "--model", "static", "--effects", "dc_offset",
+                      "--out", out], f"{out}: no space left on the device (writing residual.json)")
+    assert os.listdir(tmp_path) == []
+
+
 # ----------------------------------------------------------------- 4: file name too long
 def test_04_file_name_too_long(tmp_path, capsys):
     out = tmp_path / ("a" * 300 + ".h5")
@@ -313,6 +330,13 @@ def test_13_fit_out_is_an_existing_file(tmp_path, inputs, capsys):
     _refused(capsys, ["fit", inputs["cap"], inputs["wall"], "--out", out, "--overwrite"],
              f"{out}: exists and is not a folder")
     assert time.perf_counter() - t0 < 10 and out.read_text() == "keep"
+    from sionna_mmir.compare.workflow import FitRequest, run_fit
+    from sionna_mmir.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="not a folder"):     # the library checks first too
+        run_fit(FitRequest(capture=inputs["cap"], meshes={"wall": inputs["wall"]},
+                           out=str(out), overwrite=True))
+    assert out.read_text() == "keep"
 
 
 # ----------------------------------------------------------------- 14-16: silently accepted

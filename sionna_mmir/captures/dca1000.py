@@ -267,6 +267,11 @@ def read_dca1000(path, radar: RadarConfig | None = None, num_frames: int | None 
     if n_int16 % _GROUP[layout]:
         raise CaptureFormatError(f"{path}: {count} frame(s) of the {desc} are not a whole "
                                  f"number of DCA1000 groups of {_GROUP[layout]} int16 values")
+    from ..utils.memory import array_bytes, check_memory
+
+    # the int16 samples, the decoded complex samples, the frames and Capture's checks
+    check_memory(2 * n_int16 + 3 * array_bytes((count, *radar.adc_shape), 8),
+                 f"{path}: reading {count} frame(s)")
     raw = np.fromfile(path, dtype="<i2", count=n_int16)
     if raw.size != n_int16:
         raise CaptureFormatError(f"{path}: read {raw.size} int16 values, expected {n_int16}")

@@ -77,7 +77,25 @@ def output_guard(args):
     check_output_folder(out, replace)
     with folder_lock(out):
         check_output_folder(out, replace)           # as it is now the lock is held
-        yield
+        try:
+            yield
+        except OSError as exc:
+            raise _about_folder(exc, out) from exc
+
+
+def _about_folder(exc: OSError, out: str) -> OSError:
+    """``exc`` re-made to name the report folder ``out`` when it names a file
+    of its work folder (``<out>.partial``, or the demo's ``.demo-*``)."""
+    if exc.filename is None or exc.errno is None:
+        return exc
+    path, parent = os.path.abspath(os.fsdecode(exc.filename)), os.path.dirname(os.path.abspath(out))
+    first = os.path.relpath(path, parent).split(os.sep)[0]
+    base = os.path.basename(os.path.abspath(out))
+    if first not in (base, base + ".partial") and not first.startswith(".demo-"):
+        return exc
+    inner = os.path.relpath(path, os.path.join(parent, first))
+    where = "" if inner == "." else f" (writing {inner})"
+    return OSError(exc.errno, f"{exc.strerror or exc}{where}", out)
 
 
 def add_pose(p) -> None:

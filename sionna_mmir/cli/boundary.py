@@ -27,6 +27,8 @@ import traceback
 EXIT_BAD_INPUT = 2
 #: exit status of an unexpected exception (a bug)
 EXIT_INTERNAL = 1
+#: how a full disk is described
+NO_SPACE = "no space left on the device"
 #: environment variable that adds the traceback to an internal error
 ENV_TRACEBACK = "SIONNA_MMIR_TRACEBACK"
 
@@ -36,7 +38,8 @@ def describe(exc: BaseException) -> str:
     if isinstance(exc, OSError):
         problem = exc.strerror or str(exc) or type(exc).__name__
         if exc.errno == errno.ENOSPC:
-            problem = "no space left on the device"
+            std = os.strerror(errno.ENOSPC)
+            problem = problem.replace(std, NO_SPACE) if std in problem else NO_SPACE
         if exc.filename is not None:
             return f"{os.fsdecode(exc.filename)}: {problem}"
         return str(exc) or problem

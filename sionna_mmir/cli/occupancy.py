@@ -102,6 +102,7 @@ def run(args) -> int:
 
     radar = _dense_radar(args)
     _check_processing(args, radar)
+    render = solver_options(args).to_dict()
     names = mesh_names(args.meshes)
     truth = mesh_names(args.truth) if args.truth else names
     read_meshes(truth)
@@ -114,7 +115,6 @@ def run(args) -> int:
                                   materials_smoothing=args.materials_smoothing)
     else:
         scene = load_scene(meshes, materials=materials, radar=radar)
-    render = solver_options(args).to_dict()
     res = occupancy(scene, radar, truth, render_options=render, n_azimuth=args.n_azimuth,
                     n_elevation=args.n_elevation, percentile=args.percentile, tau=args.tau,
                     min_intensity=args.min_intensity, dynamic_range_db=args.dynamic_range_db,
