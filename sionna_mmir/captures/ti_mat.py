@@ -143,6 +143,33 @@ def _scalar(path, params, key):
     return val
 
 
+def _extras(path, cr: dict) -> dict:
+    """The optional calibration matrices of ``calibResult``, in device Tx order."""
+    extras = {}
+    for key, dtype in (("RangeMat", np.int32), ("PeakValMat", np.complex128),
+                       ("AngleMat", np.float64)):
+        if key in cr:
+            v = cr[key]
+            if v.shape != (NUM_TX, NUM_RX):
+                raise CaptureFormatError(f"{path}: calibResult.{key} has shape {v.shape}, "
+                                         f"expected ({NUM_TX}, {NUM_RX})")
+            extras[key] = np.ascontiguousarray(v[::-1].astype(dtype))
+    if "RxMismatch" in cr:
+        v = cr["RxMismatch"]
+        if v.size != NUM_RX:
+            raise CaptureFormatError(f"{path}: calibResult.RxMismatch has {v.size} values, "
+                                     f"expected {NUM_RX}")
+        extras["RxMismatch"] = v.reshape(-1).astype(np.float64)
+    if "TxMismatch" in cr:
+        v = cr["TxMismatch"]
+        if v.size != NUM_TX:
+            raise CaptureFormatError(f"{path}: calibResult.TxMismatch has {v.size} values, "
+                                     f"expected {NUM_TX}")
+        extras["TxMismatch"] = np.ascontiguousarray(
+            v.reshape(-1, order="F")[::-1].astype(np.float64))
+    return extras
+
+
 def read_ti_mat(path) -> Capture:
     """Read a TI MMWCAS calibration ``.mat`` file.
 
@@ -210,28 +237,7 @@ def read_ti_mat(path) -> Capture:
     fs = _scalar(path, params, "Sampling_Rate_sps")
     radar = RadarConfig.mmwcas(num_chirps=1, slope=slope, sample_rate=fs, num_samples=n)
 
-    extras = {}
-    for key, dtype in (("RangeMat", np.int32), ("PeakValMat", np.complex128),
-                       ("AngleMat", np.float64)):
-        if key in cr:
-            v = cr[key]
-            if v.shape != (NUM_TX, NUM_RX):
-                raise CaptureFormatError(f"{path}: calibResult.{key} has shape {v.shape}, "
-                                         f"expected ({NUM_TX}, {NUM_RX})")
-            extras[key] = np.ascontiguousarray(v[::-1].astype(dtype))
-    if "RxMismatch" in cr:
-        v = cr["RxMismatch"]
-        if v.size != NUM_RX:
-            raise CaptureFormatError(f"{path}: calibResult.RxMismatch has {v.size} values, "
-                                     f"expected {NUM_RX}")
-        extras["RxMismatch"] = v.reshape(-1).astype(np.float64)
-    if "TxMismatch" in cr:
-        v = cr["TxMismatch"]
-        if v.size != NUM_TX:
-            raise CaptureFormatError(f"{path}: calibResult.TxMismatch has {v.size} values, "
-                                     f"expected {NUM_TX}")
-        extras["TxMismatch"] = np.ascontiguousarray(
-            v.reshape(-1, order="F")[::-1].astype(np.float64))
+    extras = _extras(path, cr)
     metadata = {"file": os.path.basename(path), "format": "ti_mat", "chirps_averaged": True,
                 "frame_period": None, "iq_conjugated": False,
                 "interp_factor": INTERP, "tx_order_in_file": "enable order 12..1 (reversed)"}

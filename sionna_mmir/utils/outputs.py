@@ -69,7 +69,7 @@ def check_output_file(path, overwrite: bool) -> None:
     """Refuse an output file that cannot or may not be written (see module docstring)."""
     path = os.fspath(path)
     check_name(path)
-    if os.path.isdir(path):
+    if os.path.isdir(path) or path.endswith(os.sep):
         raise OutputError(f"{path}: is a folder; give the name of a file to write")
     if os.path.lexists(path) and not overwrite:
         raise FileExistsError(f"{path}: exists; pass --overwrite to replace it")
