@@ -30,6 +30,8 @@ import math
 import numbers
 from typing import Any
 
+import numpy as np
+
 from ..errors import ConfigError
 
 SAMPLING = ("random", "facets")
@@ -203,3 +205,23 @@ def _validate(o: SolverOptions) -> None:
     if o.velocities is not None and not isinstance(o.velocities, dict):
         raise ConfigError(f"solver option velocities must be a dict object -> (vx, vy, vz), "
                           f"got {type(o.velocities).__name__}")
+    for name, v in (o.velocities or {}).items():
+        _check_velocity(f"velocities[{name!r}]", v)
+    if o.radar_velocity is not None:
+        _check_velocity("radar_velocity", o.radar_velocity)
+
+
+def _check_velocity(what: str, value) -> None:
+    """Three finite numbers [m/s] of a speed below the speed of light."""
+    from ..radar.config import SPEED_OF_LIGHT
+
+    try:
+        v = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        v = np.zeros(0)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ConfigError(f"solver option {what} must be three finite numbers [m/s], "
+                          f"got {value!r}")
+    if np.linalg.norm(v) >= SPEED_OF_LIGHT:
+        raise ConfigError(f"solver option {what}: speed {np.linalg.norm(v):.6g} m/s is not "
+                          f"below the speed of light ({SPEED_OF_LIGHT:.0f} m/s)")
