@@ -35,7 +35,8 @@ class Plate:
         n = np.cross(self.e1, self.e2)
         self.area = np.linalg.norm(n) * (0.5 if triangle else 1.0)
         self.n = n / np.linalg.norm(n)
-        G = np.array([[self.e1 @ self.e1, self.e1 @ self.e2], [self.e1 @ self.e2, self.e2 @ self.e2]])
+        g12 = self.e1 @ self.e2
+        G = np.array([[self.e1 @ self.e1, g12], [g12, self.e2 @ self.e2]])
         self._dual = np.linalg.solve(G, np.stack([self.e1, self.e2]))    # [2, 3]
 
     def corners(self) -> np.ndarray:

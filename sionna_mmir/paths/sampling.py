@@ -11,8 +11,8 @@ the estimator weights them:
 :class:`FacetQuadrature`  one ray to a node of every (sub-)facet in the cone,
                        weighted by the facet's solid angle (a deterministic
                        quadrature; ``pdf = 1 / Omega_s``); coherent chains
-                       always continue and are never rouletted, and count
-                       the lit part of their cell only
+                       always continue and are never rouletted, and
+                       integrate over the lit footprint of their cell
                        (:mod:`.transport.aperture`)
 =====================  ======================================================
 
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..utils.backend import init_backend
-from .transport.aperture import LitAperture
+from .transport.aperture import CutPolygons, LitAperture
 from .transport.clip_lines import clip_lines
 
 init_backend()
@@ -130,7 +130,7 @@ class RandomCone:
         """The region the first interaction integrates over (its triangle)."""
         return it.tri
 
-    def aperture(self, options, keep):
+    def aperture(self, options, keep, face, tri, sub):
         """No lit apertures: Monte Carlo rays sample the lit region."""
         return None
 
@@ -150,7 +150,9 @@ class FacetQuadrature:
     vertex) is split into ``n^2`` congruent sub-facets,
     ``n = ceil(sqrt(k D^2 / (R facet_fresnel)))`` (at most
     ``max_facet_split``), each one ray (to the node :data:`NODE_WEIGHTS`) and
-    one exact triangle average.
+    one exact triangle average.  A coherent chain of two or more bounces
+    integrates over the lit footprint of its node's cell on its last triangle
+    (:class:`~.transport.aperture.LitAperture`).
     """
 
     name = "facets"
@@ -190,6 +192,7 @@ class FacetQuadrature:
         origin = dr.zeros(mi.Point3f, n) + mi.Point3f(*(float(v) for v in c))
         direction = mi.Vector3f(mi.Float(dd[:, 0]), mi.Float(dd[:, 1]), mi.Float(dd[:, 2]))
         sub_uv = [mi.Float(uvs[:, k, j].astype(np.float32)) for k in range(3) for j in range(2)]
+        self._sub_uv = sub_uv
         return Candidates(origin, direction, mi.Float((1.0 / omega).astype(np.float32)),
                           mi.UInt32(fac.astype(np.uint32)), sub_uv)
 
@@ -235,14 +238,18 @@ class FacetQuadrature:
         e1, e2 = P1 - P0, P2 - P0
         return tuple(P0 + e1 * uv[2 * c] + e2 * uv[2 * c + 1] for c in range(3))
 
-    def aperture(self, options, keep):
+    def aperture(self, options, keep, face, tri, sub):
         """The :class:`~.transport.aperture.LitAperture` of the kept nodes
-        (``keep``: their candidate indices), ``None`` without chains."""
+        (``keep``: their candidate indices; ``face``, ``tri``: their first
+        triangles; ``sub``: their cells' corners), ``None`` without chains."""
         if int(options.max_depth) < 2 or not options.coherent:
             return None
         V, F, fac, uvs, c = self._mesh
         k = np.asarray(keep, dtype=np.int64)
-        return LitAperture(c, fac[k], uvs[k], V, F, clip_lines(V, F))
+        cut = CutPolygons(c, V, F, fac[k], uvs[k], clip_lines(V, F))
+        sub_uv = [dr.gather(mi.Float, x, keep) for x in self._sub_uv]
+        return LitAperture(c, face, tuple(dr.detach(p) for p in tri),
+                           tuple(dr.detach(p) for p in sub), sub_uv, cut)
 
 
 def subfacet_cells(n: int) -> np.ndarray:

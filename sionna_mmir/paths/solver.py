@@ -16,8 +16,9 @@ call runs the transport stages of :mod:`.transport` in order:
 
 1. surface -- local geometry, deferred BSDF weight, materials;
 2. connection -- the shadow ray to the Tx;
-3. coherent -- the physical-optics field of specular chains (image theory
-   over the first surface);
+3. coherent -- the physical-optics field of specular chains (the exit
+   aperture on the last surface; under the facet quadrature clipped to
+   each node's lit footprint, :mod:`.transport.aperture`);
 4. scattered -- the BSDF speckle field and its reciprocal twin;
 5. continuation -- mirror or BSDF sample (or FSD diffraction), roulette,
    the next segment;
@@ -167,9 +168,10 @@ class RadarPathSolver(PathSolver):
         if ctx.options.diffraction:
             ctx.fsd = fsd_setup(geo, ctx.wavelength, ctx.options.fsd_width)
         it = geo.interaction(dr.full(mi.Bool, True, K), obj, face, u, v, tape)
+        tri = it.tri
         it.tri = ctx.sampler.first_triangle(it, cands, keep)
         st = _start_state(ctx, it, pdf)
-        st.aperture = ctx.sampler.aperture(ctx.options, keep)
+        st.aperture = ctx.sampler.aperture(ctx.options, keep, face, tri, it.tri)
         return st
 
     def _emit(self, ctx, st, surf, conn, depth) -> list:

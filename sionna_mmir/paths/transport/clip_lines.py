@@ -28,6 +28,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...utils.backend import init_backend
+
+init_backend()
+
+import mitsuba as mi  # noqa: E402
+
 #: creases flatter than this [deg] continue the surface (no clipping)
 CREASE_DEG = 20.0
 #: edge codes: no clip, open (always clips); +-1: side of the neighbour
@@ -69,6 +75,27 @@ def clip_lines(V, F):
         _CACHE.clear()
         _CACHE.update(key=key, value=_build(V, F))
     return _CACHE["value"]
+
+
+def drjit_tables(lines):
+    """The clip lines as flat Dr.Jit tables (cached with the lines):
+    ``(code mi.Int32 [F L], eq mi.Float [F L 4], any mi.Bool [F])`` -- ``eq``
+    the line ``m . x = d`` of line ``(f, k)`` at ``(f L + k) 4`` (``m`` the
+    unit in-plane normal towards the kept side, then ``d``), ``any`` the
+    triangles with a line that can clip."""
+    if _CACHE.get("tables_of") is not lines:
+        a, b, inner, code = lines
+        F, L = code.shape
+        n = np.cross(a[:, 0] - inner[:, 0], b[:, 0] - inner[:, 0])        # the triangle's plane
+        m = np.cross(n[:, None], b - a)
+        m /= np.maximum(np.linalg.norm(m, axis=2, keepdims=True), 1e-30)
+        m *= np.where(np.sum(m * (inner - a), axis=2, keepdims=True) < 0, -1.0, 1.0)
+        eq = np.concatenate([m, np.sum(m * a, axis=2, keepdims=True)], axis=2)
+        _CACHE["tables_of"] = lines
+        _CACHE["tables"] = (mi.Int32(code.astype(np.int32).ravel()),
+                            mi.Float(eq.astype(np.float32).ravel()),
+                            mi.Bool(np.any(code != NO_CLIP, axis=1)))
+    return _CACHE["tables"]
 
 
 def _build(V, F):

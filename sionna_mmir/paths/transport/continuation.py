@@ -7,14 +7,15 @@ mmIR BSDF (lobe sampling with the balance-heuristic mixture pdf); a path that
 scattered (or diffracted) once continues as a power-only (incoherent) path.
 Russian roulette ends paths from ``rr_depth`` on.  Under the facet
 quadrature coherent chains always continue and are never rouletted: a random
-choice would thin the first-surface integral at random (variance ~ the sum of
+choice would thin the quadrature's integral at random (variance ~ the sum of
 ``|terms|^2``, which dwarfs the stationary-phase sum); the scattered energy
 still reaches the Tx by next-event estimation at every interaction, and
 scatter-then-scatter chains are left out.
 
 The next segment is traced outside AD and rebuilt in AD; the area density of
 the next point of a coherent chain is ``p_A = pdf cos / L_unf^2`` (unfolded
-length).
+length).  A facet chain whose node's ray misses continues from a lit corner of
+its cell (:func:`.aperture.reaim`).
 """
 from __future__ import annotations
 

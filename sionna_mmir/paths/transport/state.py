@@ -128,9 +128,11 @@ class PathState:
     aperture : LitAperture or None
         Lit region of the facet quadrature's chains (``None`` for random rays).
     fan : tuple or None
-        ``(packed, T)``: the lit polygon of the current chain as ``T`` fan
-        triangles (frozen barycentric corners and weights, see
-        :func:`.aperture.fan_triangles`), or ``None``.
+        ``(main, lane, extra)``: the lit footprint of the facet node's cell on
+        the current triangle as triangles with frozen barycentric corners,
+        areas and cell shares -- one per lane (``main``, eight ``mi.Float``)
+        plus the pieces of cut cells (``lane``, ``extra``); see
+        :func:`.aperture.clip`.  ``None`` for random rays.
     lit : mi.Float or None
         Lit fraction of the node's cell for the current chain (``None``: 1).
     """
