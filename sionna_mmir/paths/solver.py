@@ -168,10 +168,9 @@ class RadarPathSolver(PathSolver):
         if ctx.options.diffraction:
             ctx.fsd = fsd_setup(geo, ctx.wavelength, ctx.options.fsd_width)
         it = geo.interaction(dr.full(mi.Bool, True, K), obj, face, u, v, tape)
-        tri = it.tri
-        it.tri = ctx.sampler.first_triangle(it, cands, keep)
-        st = _start_state(ctx, it, pdf)
-        st.aperture = ctx.sampler.aperture(ctx.options, keep, face, tri, it.tri)
+        sub = ctx.sampler.first_triangle(it, cands, keep)
+        st = _start_state(ctx, it, pdf, sub)
+        st.aperture = ctx.sampler.aperture(ctx.options, keep, face, it.tri, sub)
         return st
 
     def _emit(self, ctx, st, surf, conn, depth) -> list:
@@ -199,8 +198,9 @@ class RadarPathSolver(PathSolver):
         return out
 
 
-def _start_state(ctx, it, pdf) -> PathState:
-    """The path state at the first interaction (width ``K``)."""
+def _start_state(ctx, it, pdf, tri1) -> PathState:
+    """The path state at the first interaction (width ``K``; ``tri1`` the
+    region the first interaction integrates over)."""
     K = dr.width(pdf)
     x1 = it.p
     cw_k = dr.zeros(mi.Point3f, K) + ctx.c_w
@@ -211,7 +211,7 @@ def _start_state(ctx, it, pdf) -> PathState:
     return PathState(it=it, E=Field(transverse(e_r, k0)), inv_p=dr.ones(mi.Float, K),
                      coh=dr.full(mi.Bool, True, K), beta=zeros(K), p_area=zeros(K),
                      chain=zeros(K), prev_p=cw_k, rate_chain=zeros(K), first_pdf=pdf, x1=x1,
-                     k0=k0, L0_det=L0_det, cw_k=cw_k, tri1=it.tri,
+                     k0=k0, L0_det=L0_det, cw_k=cw_k, tri1=tri1,
                      U=(eye, mi.Vector3f(0.0, 0.0, 0.0)), x_star=x1, obj1=it.obj)
 
 

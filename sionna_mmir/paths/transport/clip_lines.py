@@ -70,10 +70,13 @@ def clip_lines(V, F):
     """
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
-    key = (V.shape, F.shape, hash(V.tobytes()), hash(F.tobytes()))
-    if _CACHE.get("key") != key:
+    topo_key = (V.shape, F.shape, hash(F.tobytes()))
+    if _CACHE.get("topo_key") != topo_key:       # welding and adjacency: once per mesh
         _CACHE.clear()
-        _CACHE.update(key=key, value=_build(V, F))
+        _CACHE.update(topo_key=topo_key, topo=_topology(V, F))
+    key = hash(V.tobytes())
+    if _CACHE.get("key") != key:                 # codes and lines: once per geometry
+        _CACHE.update(key=key, value=_build(V, F, _CACHE["topo"]))
     return _CACHE["value"]
 
 
@@ -98,13 +101,20 @@ def drjit_tables(lines):
     return _CACHE["tables"]
 
 
-def _build(V, F):
+def _topology(V, F):
+    """Welded vertex ids ``[F, 3]``, the edge pairing of :func:`edge_codes`
+    and the vertex-sharing pairs of triangles."""
+    W = np.unique(np.round(V / WELD_TOL).astype(np.int64), axis=0,
+                  return_inverse=True)[1].reshape(-1)[F]
+    return W, _edge_pairs(W), _vertex_neighbours(W)
+
+
+def _build(V, F, topo):
+    W, pairs, neighbours = topo
     P = V[F]                                                   # [F, 3, 3]
     n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-30)[:, None]
-    W = np.unique(np.round(V / WELD_TOL).astype(np.int64), axis=0,
-                  return_inverse=True)[1].reshape(-1)[F]      # welded ids [F, 3]
-    codes = edge_codes(P, n, W)
+    codes = edge_codes(P, n, pairs)
     nf, L = len(F), 3 + MAX_EXTRA
     a = np.repeat(P[:, :1], L, axis=1)
     b = np.repeat(P[:, 1:2], L, axis=1)
@@ -113,7 +123,7 @@ def _build(V, F):
     for k in range(3):
         a[:, k], b[:, k], inner[:, k] = P[:, k], P[:, (k + 1) % 3], P[:, (k + 2) % 3]
     code[:, :3] = codes
-    f, la, lb, li, lc = _neighbour_lines(P, n, W, codes)
+    f, la, lb, li, lc = _neighbour_lines(P, n, neighbours, codes)
     if len(f):
         rank = np.arange(len(f)) - np.searchsorted(f, f)      # f sorted: index within f
         ok = rank < MAX_EXTRA
@@ -122,24 +132,29 @@ def _build(V, F):
     return a, b, inner, code
 
 
-def edge_codes(P, n, W, crease_deg: float = CREASE_DEG) -> np.ndarray:
-    """``[F, 3]`` int8 code of each edge ``(k, k + 1)`` of the triangles
-    ``P [F, 3, 3]`` (unit normals ``n``, welded vertex ids ``W``)."""
-    nf = len(P)
-    codes = np.full((nf, 3), OPEN, dtype=np.int8)
-    if nf == 0:
-        return codes
+def _edge_pairs(W):
+    """``(multi, me, other)``: edge slots ``f 3 + k`` shared by more than two
+    triangles, and the slot pairs of edges shared by exactly two."""
     e0, e1 = W, np.roll(W, -1, axis=1)
-    key = (np.minimum(e0, e1) * (int(W.max()) + 1) + np.maximum(e0, e1)).ravel()
+    key = (np.minimum(e0, e1) * (int(W.max(initial=0)) + 1) + np.maximum(e0, e1)).ravel()
     order = np.argsort(key, kind="stable")
     ks = key[order]
-    start = np.r_[True, ks[1:] != ks[:-1]]
+    start = np.r_[True, ks[1:] != ks[:-1]] if len(ks) else np.zeros(0, bool)
     group = np.cumsum(start) - 1
-    count = np.bincount(group)[group]
-    codes.ravel()[order[count > 2]] = NO_CLIP
+    count = np.bincount(group)[group] if len(ks) else np.zeros(0, np.int64)
     first = np.flatnonzero(start & (count == 2))
+    return order[count > 2], order[first], order[first + 1]
+
+
+def edge_codes(P, n, pairs, crease_deg: float = CREASE_DEG) -> np.ndarray:
+    """``[F, 3]`` int8 code of each edge ``(k, k + 1)`` of the triangles
+    ``P [F, 3, 3]`` (unit normals ``n``, edge pairing ``pairs`` of
+    :func:`_edge_pairs`)."""
+    codes = np.full((len(P), 3), OPEN, dtype=np.int8)
+    multi, one, two = pairs
+    codes.ravel()[multi] = NO_CLIP
     sin_c = np.sin(np.radians(crease_deg))
-    for me, other in ((order[first], order[first + 1]), (order[first + 1], order[first])):
+    for me, other in ((one, two), (two, one)):
         f, k, g, kg = me // 3, me % 3, other // 3, other % 3
         ea, eb = P[f, k], P[f, (k + 1) % 3]
         off = P[g, (kg + 2) % 3] - ea                 # the neighbour's vertex off the edge
@@ -151,16 +166,17 @@ def edge_codes(P, n, W, crease_deg: float = CREASE_DEG) -> np.ndarray:
     return codes
 
 
-def _neighbour_lines(P, n, W, codes):
+def _neighbour_lines(P, n, neighbours, codes):
     """Clip lines that coplanar vertex-sharing neighbours lend each triangle:
     ``(face [m] sorted, a, b, inner [m, 3], code [m])``, nearest first."""
-    f, g = _vertex_neighbours(W)
-    cos_c = np.cos(np.radians(CREASE_DEG))
+    f, g = neighbours
+    lends = np.any(codes != NO_CLIP, axis=1)
+    f, g = f[lends[g]], g[lends[g]]
+    cen = P.mean(axis=1)
+    size = np.linalg.norm(P[:, 1] - P[:, 0], axis=1) + np.linalg.norm(P[:, 2] - P[:, 0], axis=1)
     dot = np.sum(n[f] * n[g], axis=1)
-    cen_g = P[g].mean(axis=1)
-    size = np.linalg.norm(P[f, 1] - P[f, 0], axis=1) + np.linalg.norm(P[f, 2] - P[f, 0], axis=1)
-    flat = (np.abs(dot) >= cos_c) & (np.abs(np.sum((cen_g - P[f, 0]) * n[f], axis=1))
-                                     < 1e-3 * size + 1e-9)
+    flat = (np.abs(dot) >= np.cos(np.radians(CREASE_DEG))) & (
+        np.abs(np.sum((cen[g] - cen[f]) * n[f], axis=1)) < 1e-3 * size[f] + 1e-9)
     f, g, sgn = f[flat], g[flat], np.sign(dot[flat]).astype(np.int8)
     out = []
     for k in range(3):
@@ -175,7 +191,7 @@ def _neighbour_lines(P, n, W, codes):
                         for v in range(3)], axis=1)
         tol = 1e-9 * np.abs(s_in)[:, None]
         ok = np.all(s_v * np.sign(s_in)[:, None] >= -tol - 1e-18, axis=1) & (np.abs(s_in) > 0)
-        d = np.linalg.norm(0.5 * (la + lb) - P[ff].mean(axis=1), axis=1)
+        d = np.linalg.norm(0.5 * (la + lb) - cen[ff], axis=1)
         out.append((ff[ok], la[ok], lb[ok], li[ok], lc[ok], d[ok]))
     f, la, lb, li, lc, d = (np.concatenate([o[i] for o in out]) for i in range(6))
     order = np.lexsort((d, f))
