@@ -7,12 +7,11 @@ differs from the default:
 
 =====================  ======================================================
 ``SolverOptions()``    a general render: 20k random rays, depth 3, no pruning
-``.fit()``             one fit iteration: depth 2 and paths 60 dB under the
+``.fit()``             one fit iteration: depth 2 and paths 40 dB under the
                        strongest dropped (they are invisible in a min-max
                        range-azimuth loss, and a fit renders hundreds of times)
 ``.benchmark()``       the benchmark table's fits: facet quadrature, depth 3,
-                       paths 50 dB down dropped (10 dB under the truth's
-                       noise floor)
+                       paths 40 dB down dropped (the truth's noise floor)
 ``.truth()``           benchmark ground truths: facet quadrature, depth 3,
                        diffraction on, no pruning
 ``.dense()``           dense-aperture inference (paper Sec. 4.3): single
@@ -111,13 +110,13 @@ class SolverOptions:
     # ----------------------------------------------------------------- presets
     @classmethod
     def fit(cls, **changes) -> "SolverOptions":
-        """One fit iteration: depth 2, paths 60 dB down dropped."""
-        return cls(**{"max_depth": 2, "min_rel_power": 1e-6, **changes})
+        """One fit iteration: depth 2, paths 40 dB down dropped."""
+        return cls(**{"max_depth": 2, "min_rel_power": 1e-4, **changes})
 
     @classmethod
     def benchmark(cls, **changes) -> "SolverOptions":
-        """The benchmark table's fits: facets, depth 3, paths 50 dB down dropped."""
-        return cls(**{"sampling": "facets", "max_depth": 3, "min_rel_power": 1e-5, **changes})
+        """The benchmark table's fits: facets, depth 3, paths 40 dB down dropped."""
+        return cls(**{"sampling": "facets", "max_depth": 3, "min_rel_power": 1e-4, **changes})
 
     @classmethod
     def truth(cls, **changes) -> "SolverOptions":
