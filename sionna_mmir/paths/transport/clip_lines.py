@@ -4,18 +4,19 @@ A facet-quadrature chain keeps the part of its cell whose rays land inside
 the later triangles (:mod:`.aperture`).  A triangle's edge ends the lit
 region only where the surface ends there:
 
-=============  ===========================================================
-open edge      no neighbour (the rim of a plate): clips
-convex crease  the neighbour bends away by more than :data:`CREASE_DEG`
-               (seen from the side the chain arrives from): clips
-flat edge      the neighbour continues the plane (within :data:`CREASE_DEG`)
-               or the edge is non-manifold: no clip
-concave crease the neighbour bends towards the incoming rays (a corner seen
-               from inside): no clip -- the rays beyond go on in another
-               ordering of the same corner, which for a right-angled corner
-               carries the same field (the ray-tube assignment of shooting
-               and bouncing rays)
-=============  ===========================================================
+open edge
+    no neighbour (the rim of a plate): clips
+convex crease
+    the neighbour bends away by more than :data:`CREASE_DEG` (seen from the
+    side the chain arrives from): clips
+flat edge
+    the neighbour continues the plane (within :data:`CREASE_DEG`) or the edge
+    is non-manifold: no clip
+concave crease
+    the neighbour bends towards the incoming rays (a corner seen from
+    inside): no clip -- the rays beyond go on in another ordering of the same
+    corner, which for a right-angled corner carries the same field (the
+    ray-tube assignment of shooting and bouncing rays)
 
 A footprint may reach past a flat edge onto a neighbour and over that
 neighbour's rim, so each triangle also carries the clipping edges of its
