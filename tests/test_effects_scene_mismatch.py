@@ -172,6 +172,6 @@ def test_06_screening_rules_out_slow_time_effects_on_a_static_capture_only():
                        np.concatenate(rho, -1)) + _noise(B.shape, 1e-4)
     out = screen(y[None], 1.0, cands)
     assert "ego_motion" not in out and "phase_noise" not in out
-    clipped = np.clip(y.real, -0.5 * np.abs(y.real).max(), 0.5 * np.abs(y.real).max()) + \
-        1j * y.imag
+    top = 0.5 * max(np.abs(y.real).max(), np.abs(y.imag).max())   # an ADC clips I and Q
+    clipped = np.clip(y.real, -top, top) + 1j * np.clip(y.imag, -top, top)
     assert "adc_clipping" not in screen(clipped[None], 1.0, cands)

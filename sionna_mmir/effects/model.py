@@ -383,6 +383,24 @@ class EffectModel:
         return dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / n
 
     # ----------------------------------------------------------------- fit
+    def _rescale_noise(self, cells=None) -> None:
+        """Start the white floor at its closed-form optimum on ``cells``.
+
+        A component initialised by least squares can shrink the residual by
+        orders of magnitude; with the floor left at the old level L-BFGS-B
+        sees a badly scaled problem and stops early.  The profiled floor
+        (mean ``|Y - X|^2``) is kept only if it lowers the NLL (variance
+        effects add to the floor).
+        """
+        mask = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
+        r2 = np.abs(self.y - self.mean_variance_numpy()[0]) ** 2
+        level = float(np.mean(r2[mask]))
+        old = np.array(self.nuisance.values["log_noise"], np.float64)
+        before = self.nll(cells)
+        self.nuisance.values["log_noise"] = np.array([np.log(max(level, 1e-12))])
+        if not self.nll(cells) < before:
+            self.nuisance.values["log_noise"] = old
+
     @_one_thread
     def fit(self, trainable=None, cells=None, maxiter: int = 200, nuisance: bool = True) -> dict:
         """Fit parameters by L-BFGS-B with Dr.Jit gradients of the masked NLL.
@@ -400,6 +418,8 @@ class EffectModel:
             keys += [(i, k) for k in self.components[i].specs]
         if not keys:
             return {"nll": self.nll(cells), "iterations": 0, "success": True}
+        if (-1, "log_noise") in keys:
+            self._rescale_noise(cells)
         comps = dict(self._all())
         specs = [comps[i].specs[k] for i, k in keys]
         sizes = [s.size for s in specs]

@@ -136,13 +136,27 @@ class SceneBasis:
     # ----------------------------------------------------------- delay maps
     def pose_delay_matrix(self) -> np.ndarray:
         """``[K, T, R, 6]`` d(delay)/d(pose) [s per m | s per rad] of each component
-        and pair, for a pose offset ``(d_x, d_y, d_z, w_x, w_y, w_z)`` (scene frame)."""
-        u = self.directions                                    # [K, 3]
-        e = self.offsets_tx[:, None, :] + self.offsets_rx[None, :, :]  # [T, R, 3]
-        d_trans = np.broadcast_to(-2.0 * u[:, None, None, :],
-                                  (len(u),) + e.shape[:2] + (3,))
+        and pair, for a pose offset ``(d_x, d_y, d_z, w_x, w_y, w_z)`` (scene frame).
+
+        Each element sees the component's point (``ranges`` along
+        ``directions`` from the array centre) along its own direction, so the
+        map stays right in the near field of wide arrays (a cascade's 8 cm
+        aperture at 3 m turns a centre-direction approximation into a
+        0.3 rad phase error for a 6 mm shift).  Rotations are about the array
+        centre: element ``e`` moves by ``w x e``.
+        """
+        points = self.directions * self.ranges[:, None]            # [K, 3]
+
+        def towards(offsets):
+            d = points[:, None, :] - offsets[None]                 # [K, E, 3]
+            return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+        u_t, u_r = towards(self.offsets_tx), towards(self.offsets_rx)
+        d_trans = -(u_t[:, :, None, :] + u_r[:, None, :, :])
         # -u . (w x e) = -w . (e x u)
-        d_rot = -np.cross(e[None], u[:, None, None, :])
+        rot_t = -np.cross(self.offsets_tx[None], u_t)               # [K, T, 3]
+        rot_r = -np.cross(self.offsets_rx[None], u_r)               # [K, R, 3]
+        d_rot = rot_t[:, :, None, :] + rot_r[:, None, :, :]
         return np.concatenate([d_trans, d_rot], axis=-1) / SPEED_OF_LIGHT
 
 

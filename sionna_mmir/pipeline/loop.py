@@ -192,7 +192,10 @@ class Loop:
         os.makedirs(self.tmp, exist_ok=True)
         saved = self._load_state() if self.req.resume else None
         if saved is not None:
-            self.model.restore(saved["model"])
+            try:
+                self.model.restore(saved["model"])
+            except InputValueError as err:
+                raise InputValueError(f"{self.state_path}: {err}") from None
             self.run, self.timings = saved["run"], saved["timings"]
             if self.run is not None:
                 self.run.model = self.model.chain

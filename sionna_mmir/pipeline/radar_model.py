@@ -147,12 +147,18 @@ class RadarModel:
             chain = {"nuisance": {k: np.array(v) for k, v in self.chain.nuisance.values.items()},
                      "components": [(c.effect, {k: np.array(v) for k, v in c.values.items()},
                                      c.specs) for c in self.chain.components]}
-        return {"latents": self.latents, "basis": self.basis, "chain": chain}
+        return {"latents": self.latents, "basis": self.basis, "chain": chain,
+                "radar": self.radar.to_dict()}
 
     def restore(self, state: dict) -> None:
         """Inverse of :meth:`state`."""
         from ..effects.model import Component
+        from ..radar.config import RadarConfig
 
+        saved = state.get("radar")
+        if saved is None or RadarConfig.from_dict(saved) != self.radar:
+            raise InputValueError("the checkpoint was made for another radar than the "
+                                  "capture's (resume with the capture it was started on)")
         self.latents = state["latents"]
         self.basis = state["basis"]
         if self.latents is not None:
