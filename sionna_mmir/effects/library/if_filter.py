@@ -157,16 +157,15 @@ class IFFilter(Effect):
         G = (np.conj(Xe).T @ Xe) * win[dk]
         f = band_frequencies(ctx, self.band_start, n)
         bin_hz = ctx.radar.sample_rate / n
-        best = (-np.inf, hb[0], lb[1])
-        for hp in np.linspace(hb[0], hb[1], 32):
-            for lp in np.linspace(lb[0], lb[1], 32):
-                H = response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
-                                   bin_hz)
-                den = np.real(np.conj(H) @ G @ H)
-                gain = np.abs(np.vdot(H, v)) ** 2 / den if den > 0 else -np.inf
-                if gain > best[0]:
-                    best = (gain, hp, lp)
-        return float(best[1]), float(best[2])
+        grid = [(hp, lp) for hp in np.linspace(hb[0], hb[1], 32)
+                for lp in np.linspace(lb[0], lb[1], 32)]
+        H = np.stack([response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
+                                     bin_hz) for hp, lp in grid])            # [grid, n]
+        den = np.real(np.sum(np.conj(H) * (H @ G.T), axis=1))
+        num = np.abs(np.conj(H) @ v) ** 2
+        gain = np.where(den > 0, num / np.where(den > 0, den, 1.0), -np.inf)
+        hp, lp = grid[int(np.argmax(gain))]
+        return float(hp), float(lp)
 
     # --------------------------------------------------------------- forward
     def response(self, p, ctx, n: int | None = None):
