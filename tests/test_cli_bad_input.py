@@ -636,3 +636,37 @@ def test_26_no_traceback_for_any_bad_input(tmp_path, inputs, capsys):
                          timeout=300)
     assert res.returncode == EXIT_BAD_INPUT
     assert res.stderr.strip().splitlines() == [f"error: {tmp_path / 'zero.npy'}: file is empty"]
+
+
+# --------------------------------------------------------------- 27: loop inputs
+def test_27_loop_refuses_bad_runs_frames_candidates_and_foreign_checkpoints(tmp_path, inputs,
+                                                                            capsys):
+    """Each refused before a report folder exists: an unreadable run folder, a
+    mesh in a frame the radar cannot see, empty or unknown candidate lists, a
+    checkpoint made for another radar."""
+    import pickle
+
+    from sionna_mmir.pipeline.loop import STATE_FORMAT
+
+    cap, wall = inputs["cap"], inputs["wall"]
+    run = tmp_path / "run"
+    (run / "cascade" / "adc_samples").mkdir(parents=True)
+    (run / "cascade" / "adc_samples" / "frame_0.bin").write_bytes(b"\x01\x02\x03")
+    behind = _wall(tmp_path / "behind.ply", x=-3.0)
+    out = tmp_path / "loop"
+    cases = [([run, wall], str(run)), ([cap, behind, "--fit-iterations", "0"], "do not overlap"),
+             ([cap, wall, "--effects", ","], "empty list of candidate effects"),
+             ([cap, wall, "--effects", "gremlins"], "gremlins")]
+    for args, word in cases:
+        _refused(capsys, ["loop", *args, "--out", out], word)
+        assert not out.exists() and not (tmp_path / "loop.partial").exists()
+    # a checkpoint of a cascade run resumed with a single-chip capture
+    partial = tmp_path / "loop.partial"
+    partial.mkdir()
+    state = {"format": STATE_FORMAT, "model": {"latents": None, "basis": None, "chain": None,
+                                               "radar": RadarConfig.mmwcas().to_dict()},
+             "run": None, "timings": {}, "info": {}, "scene_mismatch": None}
+    (partial / "loop_state.pkl").write_bytes(pickle.dumps(state))
+    _refused(capsys, ["loop", cap, wall, "--fit-iterations", "0", "--out", out, "--resume"],
+             "loop_state.pkl", "another radar")
+    assert not out.exists() and os.listdir(partial) == ["loop_state.pkl"]

@@ -98,6 +98,8 @@ def check_request(req: LoopRequest) -> None:
         raise ConfigError(f"--folds must be >= 2, got {req.folds}")
     if not np.isfinite(req.penalty) or req.penalty < 0:
         raise ConfigError(f"--penalty must be a finite number >= 0, got {req.penalty}")
+    if req.effects is not None:
+        default_candidates(req.effects)               # unknown or empty lists, up front
 
 
 def load_capture_posed(req: LoopRequest):
