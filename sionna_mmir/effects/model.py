@@ -43,7 +43,7 @@ def _one_thread(fn):
     return wrapped
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(eq=False)            # identity: values hold arrays
 class Component:
     """An effect in the model with its parameter specs and current values."""
 
