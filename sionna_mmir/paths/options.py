@@ -61,6 +61,11 @@ class SolverOptions:
         Integrate the physical-optics phase exactly over each hit triangle.
     diffraction : bool
         Free-space diffraction (FSD) at boundary and crease edges.
+    sms : bool
+        Specular manifold sampling on curved (smooth-shaded) triangles: the
+        first interactions there seed a Newton walk to the specular point,
+        which radiates the stationary-phase value of the physical-optics
+        integral (:mod:`.transport.specular`).
     fsd_width : float or None
         Gaussian footprint of the FSD lobe [m] (default 3 wavelengths).
     rr_depth : int
@@ -93,6 +98,7 @@ class SolverOptions:
     reciprocal: bool = True
     triangle_average: bool = True
     diffraction: bool = False
+    sms: bool = False
     fsd_width: float | None = None
     rr_depth: int = 2
     facet_fresnel: float = 0.5
@@ -197,7 +203,7 @@ def _validate(o: SolverOptions) -> None:
         if not ok:
             raise ConfigError(f"solver option {name} must be {what}, got {getattr(o, name)!r}")
     for name in ("coherent", "scattering", "reciprocal", "triangle_average", "diffraction",
-                 "check_inside"):
+                 "sms", "check_inside"):
         if not isinstance(getattr(o, name), (bool, numbers.Integral)):
             raise ConfigError(f"solver option {name} must be True or False, "
                               f"got {getattr(o, name)!r}")

@@ -47,7 +47,7 @@ from .polarization import Field, transverse
 from .pose import Pose
 from .radar_paths import RadarPaths
 from .sampling import make_sampler
-from .transport import aperture, coherent, continuation, motion, scattered
+from .transport import aperture, coherent, continuation, motion, scattered, specular
 from .transport.connection import connect
 from .transport.diffraction import fsd_setup
 from .transport.state import Emission, PathState, SolverContext, zeros
@@ -179,6 +179,11 @@ class RadarPathSolver(PathSolver):
         C_re, C_im = zeros(K), zeros(K)
         if opts.coherent:
             wr, wi, m = coherent.coherent_field(ctx, st, surf, conn, depth)
+            if depth == 1 and opts.sms:       # curved lanes: the specular point instead
+                curved, lanes = specular.sms_lanes(ctx, st)
+                m = m & ~curved
+                sms = specular.sms_emission(ctx, st, lanes)
+                out += [sms] if sms is not None else []
             if depth == 1:
                 C_re += dr.select(m, wr, 0.0)
                 C_im += dr.select(m, wi, 0.0)

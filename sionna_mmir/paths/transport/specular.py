@@ -1,0 +1,190 @@
+"""The SMS stage: specular manifold sampling as the specular connection on curved meshes.
+
+On a curved object tessellated finely (or coarsely, with interpolated
+vertex normals) the mirror direction at the point a ray happened to hit
+leaves the hit triangle: the reflection towards the transmitter happens at a
+point of another triangle, and on a smooth-shaded mesh no flat facet holds
+it at all.  With ``SolverOptions.sms`` every first interaction on a *curved*
+triangle (its three vertex normals differ) seeds the Newton walk of
+:func:`sionna_mmir.paths.sms.solve_specular` (Zeltner, Georgiev & Jakob,
+"Specular manifold sampling for rendering high-frequency caustics and
+glints", ACM TOG 39(4), 2020), which moves on the mesh, re-projecting onto
+it after every step, until the half-vector of the array centre seen twice
+(monostatic) is the interpolated normal.  The specular point ``x`` radiates
+the stationary-phase value of the physical-optics integral
+(:func:`sionna_mmir.paths.sms.stationary_phase`)::
+
+    C = j / (4 pi) (e_t . E_refl) cos_i sqrt(eta_b) A_sp(x) W / N,
+
+``A_sp = 2 pi / (k sqrt|det H|) exp(-j pi sig(H) / 4)`` and ``W`` the
+estimate of ``1 / p(x)``, ``p(x)`` the probability that a seed converges to
+``x``.  ``W`` follows Zeltner et al.'s Bernoulli-trial estimator: trials draw
+seeds from the same ``N`` candidates, a trial succeeds when its walk ends at
+``x`` (within ``match``), so the trial count until the first success is
+geometric with success probability ``c(x) / N`` (``c`` the candidates whose
+walk ends there) and is drawn as such; ``E[W] = N / c(x)`` makes the sum
+over the seeds an unbiased estimate of the sum over the specular points the
+walks find.  Under the deterministic facet quadrature ``W = N / c(x)``.
+These lanes' own physical-optics term is dropped (the stationary-phase value
+replaces the integral over the curved surface they sample).
+
+Gradients: the specular point moves by the implicit function theorem
+(:func:`sionna_mmir.paths.sms.specular_point_ad`), and the amplitude and
+the per-element legs follow it; the walk, the trial counts and the
+visibility are detached and frozen on the tape (a replay re-uses them).
+
+Limits: stationary phase needs the first Fresnel zone about ``x`` to lie on
+the curved surface (no truncation by its rim) and a non-degenerate ``H``;
+chains of two or more specular bounces keep the mirror continuation.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...radio_materials.fresnel import complex_permittivity, slab_coefficients
+from ...radio_materials.fresnel import SPEED_OF_LIGHT
+from ...utils.backend import init_backend
+from ..polarization import Field, reflect_field, transverse
+from ..sms import SpecularSolution, solve_specular, stationary_phase
+from .motion import vertex_rate
+from .state import Emission, zeros
+
+init_backend()
+
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
+
+#: two walks that end closer than this [m] found the same specular point
+MATCH = 1e-4
+
+
+def curved_faces(geo) -> np.ndarray:
+    """``bool [F]``: triangles whose three vertex normals are not parallel."""
+    nrm = np.asarray(dr.detach(geo.normals), dtype=np.float64).reshape(-1, 3)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
+    f = np.asarray(geo.faces, dtype=np.int64).reshape(-1, 3)
+    n0, n1, n2 = nrm[f[:, 0]], nrm[f[:, 1]], nrm[f[:, 2]]
+    dots = np.minimum(np.minimum(np.sum(n0 * n1, 1), np.sum(n0 * n2, 1)), np.sum(n1 * n2, 1))
+    return dots < 1.0 - 1e-7
+
+
+def sms_lanes(ctx, st):
+    """``(mask, indices)`` of the first interactions on curved triangles."""
+    curved = ctx.tape.freeze_call(_curved_lanes, ctx, st)
+    return curved, dr.compress(curved)
+
+
+def _curved_lanes(ctx, st):
+    table = mi.Bool(curved_faces(ctx.geo))
+    return st.it.valid & dr.gather(mi.Bool, table, st.it.face, st.it.valid)
+
+
+def trial_weights(pos, obj, valid, n_seeds: int, rng, deterministic: bool) -> np.ndarray:
+    """``W`` of each walk: the Bernoulli-trial estimate of ``1 / p(x)``.
+
+    Parameters
+    ----------
+    pos : ndarray, shape (M, 3)
+        End points of the walks [m].
+    obj : ndarray, shape (M,)
+        Their objects.
+    valid : ndarray of bool, shape (M,)
+        Walks that found a specular point.
+    n_seeds : int
+        Seeds a trial draws from (the candidates ``N``; 1 under the facet
+        quadrature, whose estimate is not divided by ``N``).
+    rng : numpy.random.Generator
+        Source of the trial counts.
+    deterministic : bool
+        Return the expectation ``N / c`` instead of a geometric draw.
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        ``W`` (0 on invalid walks).
+    """
+    W = np.zeros(len(pos))
+    idx = np.flatnonzero(valid)
+    if idx.size == 0:
+        return W
+    counts = _match_counts(pos[idx], obj[idx])
+    if deterministic:
+        W[idx] = float(n_seeds) / counts
+    else:
+        W[idx] = rng.geometric(np.clip(counts / float(n_seeds), 1e-12, 1.0)).astype(np.float64)
+    return W
+
+
+def _match_counts(pos, obj) -> np.ndarray:
+    """For each end point, the end points on its object within about
+    :data:`MATCH` (a cell grid of that size and its 26 neighbours; distinct
+    specular points lie much further apart)."""
+    cell = np.floor(pos / MATCH).astype(np.int64)
+    primes = np.array([73856093, 19349663, 83492791], dtype=np.int64)
+
+    def key(cl):
+        return (cl * primes).sum(axis=1) ^ (obj.astype(np.int64) * 2654435761)
+
+    uniq, cnt = np.unique(key(cell), return_counts=True)
+    out = np.zeros(len(pos))
+    for off in np.stack(np.meshgrid(*([np.arange(-1, 2)] * 3), indexing="ij"), -1).reshape(-1, 3):
+        k = key(cell + off)
+        j = np.clip(np.searchsorted(uniq, k), 0, len(uniq) - 1)
+        out += np.where(uniq[j] == k, cnt[j], 0)
+    return out
+
+
+def _solve(ctx, st, lanes):
+    """Frozen ``(valid, obj, prim, u, v, W)`` of the walks seeded at ``lanes``."""
+    tape, geo = ctx.tape, ctx.geo
+    if tape.replaying:
+        return [tape.freeze(None) for _ in range(6)]
+    c = dr.detach(ctx.c_w)
+    seed = dr.gather(mi.Point3f, dr.detach(st.it.p), lanes)
+    sol = solve_specular(geo.scene, c, c, seed, max_iter=40, tol=1e-6)
+    x = np.stack([np.asarray(sol.position[i], dtype=np.float64) for i in range(3)], axis=1)
+    rng = np.random.default_rng(int(ctx.options.seed) + 0x5EED)
+    W = trial_weights(x, np.asarray(sol.object_id, dtype=np.int64),
+                      np.asarray(sol.valid, dtype=bool), int(ctx.n_est), rng,
+                      ctx.sampler.deterministic_chains)
+    out = (sol.valid, sol.object_id, sol.prim_index, mi.Float(sol.bary.x), mi.Float(sol.bary.y),
+           mi.Float(W.astype(np.float32)))
+    return [tape.freeze(v) for v in out]
+
+
+def sms_emission(ctx, st, lanes) -> Emission | None:
+    """The specular points found from ``lanes`` as depth-1 paths (see the
+    module docstring); ``None`` when there are none."""
+    if dr.width(lanes) == 0:
+        return None
+    valid, obj, prim, u0, v0, W = _solve(ctx, st, lanes)
+    M = dr.width(valid)
+    sol = SpecularSolution(valid=valid, shape=None, object_id=obj, prim_index=prim,
+                           bary=mi.Point2f(u0, v0), position=None, normal=None,
+                           iterations=None, error=None)
+    c = dr.zeros(mi.Point3f, M) + ctx.c_w
+    x, u, v, ar, ai = stationary_phase(ctx.geo.scene, sol, c, c, ctx.k_wave)
+    face = dr.gather(mi.UInt32, ctx.geo._face_offset, dr.select(valid, obj, 0)) + prim
+    it = ctx.geo.interaction(valid, obj, face, u, v)
+    k_in = dr.normalize(x - c)
+    n = dr.select(dr.dot(it.n, k_in) > 0, -it.n, it.n)
+    cos_i = dr.maximum(-dr.dot(k_in, n), 0.0)
+    eps = complex_permittivity(it.mat[0], it.mat[1], backend="drjit")
+    sc = slab_coefficients(cos_i, eps, it.mat[5], ctx.frequency, backend="drjit")
+    pose = ctx.pose
+    e_r = pose.to_scene(ctx.prx.polarization(pose.to_radar(k_in)))
+    E = reflect_field(Field(transverse(e_r, k_in)), k_in, n, sc.r_s, sc.r_p)
+    k_t = -k_in
+    e_t = transverse(pose.to_scene(ctx.ptx.polarization(pose.to_radar(-k_t))), k_t)
+    pr, pi_ = E.dot(e_t)
+    eta_b = dr.exp(-dr.square(ctx.k_wave * it.mat[2] * 2.0 * cos_i))
+    scale = cos_i * dr.sqrt(eta_b) * W / (4.0 * math.pi * ctx.n_est)
+    wr, wi = -pi_ * scale, pr * scale            # j (pr + j pi)
+    m = valid & (W > 0) & (cos_i > 0)
+    rate = vertex_rate(ctx.velocities, obj, k_in, k_t)
+    rate = (rate - dr.detach(dr.dot(ctx.v_radar, k_in) + dr.dot(ctx.v_radar, -k_t))) \
+        / SPEED_OF_LIGHT
+    return Emission(dr.select(m, wr * ar - wi * ai, 0.0), dr.select(m, wr * ai + wi * ar, 0.0),
+                    x, x, zeros(M), zeros(M), rate, 1, m, obj)
