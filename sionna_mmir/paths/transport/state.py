@@ -54,6 +54,8 @@ class SolverContext:
         Radar velocity [m/s].
     fsd : dict or None
         Free-space diffraction state (edges, index, width).
+    fsd_edges : dict or None
+        Boundary edges of coherent FSD (:func:`.fsd_coherent.boundary_edges`).
     """
 
     options: object
@@ -73,6 +75,7 @@ class SolverContext:
     velocities: object = None
     v_radar: object = None
     fsd: object = None
+    fsd_edges: object = None
     n_est: int = 1
     rng: object = None
 
