@@ -50,6 +50,7 @@ from .sampling import make_sampler
 from .transport import aperture, coherent, continuation, motion, scattered, specular
 from .transport.connection import connect
 from .transport.diffraction import fsd_setup
+from .transport.fsd_coherent import boundary_edges, fsd_emission
 from .transport.state import Emission, PathState, SolverContext, zeros
 from .transport.surface import at_surface
 
@@ -165,6 +166,8 @@ class RadarPathSolver(PathSolver):
                                                        int(ctx.options.seed) + 0x9E3779B9))
         if ctx.options.diffraction:
             ctx.fsd = fsd_setup(geo, ctx.wavelength, ctx.options.fsd_width)
+        if ctx.options.fsd_coherent:
+            ctx.fsd_edges = boundary_edges(geo)
         it = geo.interaction(dr.full(mi.Bool, True, K), obj, face, u, v, tape)
         sub = ctx.sampler.first_triangle(it, cands, keep)
         st = _start_state(ctx, it, pdf, sub)
@@ -189,6 +192,9 @@ class RadarPathSolver(PathSolver):
                 C_im += dr.select(m, wi, 0.0)
             else:
                 out.append(coherent.coherent_emission(st, surf, wr, wi, m, conn.rate, depth))
+            fsd = fsd_emission(ctx, st, surf, conn, depth) if opts.fsd_coherent else None
+            if fsd is not None:     # blocked connections, through the edges
+                out.append(coherent.coherent_emission(st, surf, *fsd, conn.rate, depth))
         if opts.scattering:
             sc_re, sc_im = scattered.scattered_field(ctx, st, surf, conn)
             C_re += sc_re

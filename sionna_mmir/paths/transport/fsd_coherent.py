@@ -158,7 +158,7 @@ def edge_field(geo, edges, x, c, wavelength: float, tape, seed: int = 0, check_v
         point; the direct one where no edge diffracts).
     """
     Q = dr.width(x)
-    c = dr.zeros(mi.Point3f, Q) + c
+    c = mi.Point3f(*(dr.zeros(mi.Float, Q) + c[i] for i in range(3)))
     k = 2.0 * math.pi / wavelength
     sel = tape.freeze_call(_pairs, edges, x, c, wavelength, seed, NODES)
     qi, vi0, vi1, vai, frac = sel
@@ -166,7 +166,7 @@ def edge_field(geo, edges, x, c, wavelength: float, tape, seed: int = 0, check_v
     k_dir = dr.normalize(c - x)
     if not ok_pair:
         return dr.zeros(mi.Float, Q), dr.zeros(mi.Float, Q), k_dir
-    X, Cc = dr.gather(mi.Point3f, x, qi), dr.gather(mi.Point3f, c, qi)
+    X, Cc = _gather3(x, qi), _gather3(c, qi)
     P0, P1, A = (_vertex(geo, v) for v in (vi0, vi1, vai))
     t = dr.normalize(P1 - P0)
     L = dr.norm(P1 - P0)
@@ -216,6 +216,10 @@ def _scatter3(base, value, index, active=True):
     for i in range(3):
         dr.scatter(comps[i], value[i], index, active)
     return mi.Vector3f(*comps)
+
+
+def _gather3(v, idx):
+    return mi.Point3f(*(dr.gather(mi.Float, v[i], idx) for i in range(3)))
 
 
 def _vertex(geo, vid):
@@ -295,7 +299,7 @@ def fsd_emission(ctx, st, surf, conn, depth: int):
     lanes = dr.compress(blocked)
     if dr.width(lanes) == 0 or ctx.fsd_edges is None:
         return None
-    x = dr.gather(mi.Point3f, surf.x, lanes)
+    x = _gather3(surf.x, lanes)
     D_re, D_im, k_arr = edge_field(ctx.geo, ctx.fsd_edges, x, ctx.c_w, ctx.wavelength, ctx.tape,
                                    seed=int(ctx.options.seed) + depth)
     K = st.width

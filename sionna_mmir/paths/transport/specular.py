@@ -25,6 +25,8 @@ geometric with success probability ``c(x) / N`` (``c`` the candidates whose
 walk ends there) and is drawn as such; ``E[W] = N / c(x)`` makes the sum
 over the seeds an unbiased estimate of the sum over the specular points the
 walks find.  Under the deterministic facet quadrature ``W = N / c(x)``.
+The seeds that reached one specular point are merged into one path carrying
+their summed ``W`` (:func:`merge_walks`).
 These lanes' own physical-optics term is dropped (the stationary-phase value
 replaces the integral over the curved surface they sample).
 
@@ -117,22 +119,42 @@ def trial_weights(pos, obj, valid, n_seeds: int, rng, deterministic: bool) -> np
     return W
 
 
-def _match_counts(pos, obj) -> np.ndarray:
-    """For each end point, the end points on its object within about
-    :data:`MATCH` (a cell grid of that size and its 26 neighbours; distinct
-    specular points lie much further apart)."""
+def _cells(pos, obj):
+    """Integer cells of side :data:`MATCH` and a hash key of (cell, object)."""
     cell = np.floor(pos / MATCH).astype(np.int64)
     primes = np.array([73856093, 19349663, 83492791], dtype=np.int64)
 
     def key(cl):
         return (cl * primes).sum(axis=1) ^ (obj.astype(np.int64) * 2654435761)
 
+    return cell, key
+
+
+def _match_counts(pos, obj) -> np.ndarray:
+    """For each end point, the end points on its object within about
+    :data:`MATCH` (a cell grid of that size and its 26 neighbours; distinct
+    specular points lie much further apart)."""
+    cell, key = _cells(pos, obj)
     uniq, cnt = np.unique(key(cell), return_counts=True)
     out = np.zeros(len(pos))
     for off in np.stack(np.meshgrid(*([np.arange(-1, 2)] * 3), indexing="ij"), -1).reshape(-1, 3):
         k = key(cell + off)
         j = np.clip(np.searchsorted(uniq, k), 0, len(uniq) - 1)
         out += np.where(uniq[j] == k, cnt[j], 0)
+    return out
+
+
+def merge_walks(pos, obj, W) -> np.ndarray:
+    """Walks that ended in the same cell are one specular point: the first
+    carries their summed ``W`` (the estimate is unchanged, one path is
+    emitted instead of one per seed), the others get 0."""
+    out = np.zeros_like(W)
+    idx = np.flatnonzero(W > 0)
+    if idx.size == 0:
+        return out
+    cell, key = _cells(pos[idx], obj[idx])
+    _, first, inv = np.unique(key(cell), return_index=True, return_inverse=True)
+    np.add.at(out, idx[first], np.bincount(inv.ravel(), weights=W[idx]))
     return out
 
 
@@ -146,11 +168,15 @@ def _solve(ctx, st, lanes):
     sol = solve_specular(geo.scene, c, c, seed, max_iter=40, tol=1e-6)
     x = np.stack([np.asarray(sol.position[i], dtype=np.float64) for i in range(3)], axis=1)
     rng = np.random.default_rng(int(ctx.options.seed) + 0x5EED)
-    W = trial_weights(x, np.asarray(sol.object_id, dtype=np.int64),
-                      np.asarray(sol.valid, dtype=bool), int(ctx.n_est), rng,
+    obj = np.asarray(sol.object_id, dtype=np.int64)
+    W = trial_weights(x, obj, np.asarray(sol.valid, dtype=bool), int(ctx.n_est), rng,
                       ctx.sampler.deterministic_chains)
-    out = (sol.valid, sol.object_id, sol.prim_index, mi.Float(sol.bary.x), mi.Float(sol.bary.y),
-           mi.Float(W.astype(np.float32)))
+    W = merge_walks(x, obj, W)
+    keep = mi.UInt32(np.flatnonzero(W > 0).astype(np.uint32))
+    out = (mi.Bool(True) & dr.gather(mi.Bool, sol.valid, keep),
+           dr.gather(mi.UInt32, sol.object_id, keep), dr.gather(mi.UInt32, sol.prim_index, keep),
+           dr.gather(mi.Float, sol.bary.x, keep), dr.gather(mi.Float, sol.bary.y, keep),
+           mi.Float(W[W > 0].astype(np.float32)))
     return [tape.freeze(v) for v in out]
 
 
@@ -161,6 +187,8 @@ def sms_emission(ctx, st, lanes) -> Emission | None:
         return None
     valid, obj, prim, u0, v0, W = _solve(ctx, st, lanes)
     M = dr.width(valid)
+    if M == 0:
+        return None
     sol = SpecularSolution(valid=valid, shape=None, object_id=obj, prim_index=prim,
                            bary=mi.Point2f(u0, v0), position=None, normal=None,
                            iterations=None, error=None)
