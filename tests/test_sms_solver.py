@@ -153,3 +153,52 @@ def test_options_validate_the_switches():
         SolverOptions(sms="yes")
     with pytest.raises(ConfigError):
         SolverOptions(diffraction=True, fsd_coherent=True)
+
+
+def _bistatic_sphere_go(a, centre, src, dst):
+    """Geometric-optics amplitude ratio of a sphere's reflection from ``src``
+    to ``dst`` (unit spherical source): ``(1 / s1) sqrt(rho1 rho2 /
+    ((rho1 + s2)(rho2 + s2)))``, ``1/rho1 = 1/s1 + 2/(a cos)``, ``1/rho2 =
+    1/s1 + 2 cos / a`` (principal sections of the reflected wavefront)."""
+    from scipy.optimize import minimize
+
+    def pt(ang):
+        th, ph = ang
+        return centre + a * np.array([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph),
+                                      np.sin(th)])
+
+    r = minimize(lambda g: np.linalg.norm(pt(g) - src) + np.linalg.norm(pt(g) - dst),
+                 [0.0, np.pi], method="Nelder-Mead", options=dict(xatol=1e-10, fatol=1e-13))
+    x = pt(r.x)
+    s1, s2 = np.linalg.norm(x - src), np.linalg.norm(x - dst)
+    cos = np.dot((x - centre) / a, (src - x) / s1)
+    r1, r2 = 1 / (1 / s1 + 2 / (a * cos)), 1 / (1 / s1 + 2 * cos / a)
+    return (1 / s1) * np.sqrt(r1 * r2 / ((r1 + s2) * (r2 + s2)))
+
+
+def test_floor_bounce_chain_within_1db_of_geometric_optics():
+    """Depth 2, a sphere 0.6 m above a metal floor: the two orders of the
+    floor-sphere chain against twice the image-source closed form (the
+    radar's image in the floor lights the sphere); the mirror chains alone
+    are off by more."""
+    radar, c = _radar()
+    a, hf = 0.3, 0.6
+    centre = c + np.array([R + a, 0, 0])
+    fz = c[2] - hf
+    floor = trimesh.Trimesh(np.array([[c[0] + 0.5, -2, fz], [c[0] + 6, -2, fz],
+                                      [c[0] + 6, 2, fz], [c[0] + 0.5, 2, fz]]),
+                            [[0, 1, 2], [0, 2, 3]], process=False)
+    scene = load_scene({"sphere": _sphere(a, centre, 5), "floor": floor},
+                       materials={"sphere": "metal", "floor": "metal"}, radar=radar)
+    image = c.copy()
+    image[2] = 2 * fz - c[2]
+    ref = 2 * LAM / (4 * np.pi) * _bistatic_sphere_go(a, centre, image, c)
+    out = {}
+    for sms in (False, True):
+        p = RadarPathSolver()(scene, max_depth=2, num_rays=20_000, seed=1, cone_angle_deg=20,
+                              scattering=False, tx_pattern="iso", rx_pattern="iso", sms=sms)
+        amp, tau, _ = p.numpy()
+        coef = (amp[0, 0] * np.exp(2j * np.pi * F0 * tau[0, 0]))[p.depth == 2].sum()
+        out[sms] = 20 * np.log10(abs(coef) / ref)
+    assert abs(out[True]) < 1.0
+    assert abs(out[False]) > 1.0

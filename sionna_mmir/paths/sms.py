@@ -361,7 +361,7 @@ def _project_seed(scene, tables, a, b, seed):
 
 
 def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
-                   step_limit=None) -> SpecularSolution:
+                   step_limit=None, trace_a: bool = True) -> SpecularSolution:
     """Find reflection points ``x`` on the scene's meshes for ``a -> x -> b``.
 
     Runs without AD (see the module docstring).  Returns a
@@ -379,6 +379,9 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
         on ``|C|`` (~ angle between h and n) [rad].
     step_limit : float or mi.Float, optional
         Largest step [m]; default a quarter of the shorter distance from x to a or b.
+    trace_a : bool, optional
+        Trace the shadow ray ``x -> a`` (off when ``a`` is a virtual source,
+        the image of a point seen through mirrors).
     """
     tables = _Tables(scene, detach=True)
     if int(max_iter) < 0:
@@ -464,22 +467,27 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
         front = ((dr.dot(da, nrm) > 0) & (dr.dot(db, nrm) > 0)
                  & (dr.dot(da, ng) > 0) & (dr.dot(db, ng) > 0))
         check = converged & front
-        eps = mi.math.RayEpsilon * _scene_scale(x)
-        o = x + ng * eps
-        visible = mi.Bool(check)
-        for target in (a, b):
-            d = target - o
-            dist = dr.norm(d)
-            ray = mi.Ray3f(o, d / dist)
-            ray.maxt = dist * (1.0 - mi.math.ShadowEpsilon)
-            visible &= ~scene.mi_scene.ray_test(ray, check)
-        valid = check & visible
+        valid = check & _visible(scene, x, ng, (a, b) if trace_a else (b,), check)
         sol = SpecularSolution(
             valid=valid, shape=tables.shapes(obj), object_id=obj, prim_index=mi.UInt32(prim),
             bary=mi.Point2f(u, v), position=mi.Point3f(x), normal=mi.Vector3f(nrm),
             iterations=iterations, error=dr.select(dr.isfinite(err), err, dr.inf))
         dr.eval(sol)
     return sol
+
+
+def _visible(scene, x, ng, targets, check):
+    """Shadow rays from ``x`` (offset along ``ng`` by Mitsuba's ``RayEpsilon``
+    scale) to every target unoccluded."""
+    o = x + ng * (mi.math.RayEpsilon * _scene_scale(x))
+    visible = mi.Bool(check)
+    for target in targets:
+        d = target - o
+        dist = dr.norm(d)
+        ray = mi.Ray3f(o, d / dist)
+        ray.maxt = dist * (1.0 - mi.math.ShadowEpsilon)
+        visible &= ~scene.mi_scene.ray_test(ray, check)
+    return visible
 
 
 def _select_tree(mask, new, old):
@@ -567,8 +575,8 @@ def stationary_phase(scene, solution: SpecularSolution, a, b, k_wave: float):
 
     .. math::
 
-        \int e^{-j k \phi} dA pprox e^{-j k \phi(x)}
-        rac{2 \pi}{k \sqrt{|\det H|}} e^{-j \pi\, \mathrm{sig}(H) / 4},
+        \int e^{-j k \phi} dA \approx e^{-j k \phi(x)}
+        \frac{2 \pi}{k \sqrt{|\det H|}} e^{-j \pi\, \mathrm{sig}(H) / 4},
 
     ``H`` the Hessian of ``phi`` in orthonormal tangent coordinates and
     ``sig`` its signature.  On the manifold walk's chart the tangential

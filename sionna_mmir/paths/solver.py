@@ -182,10 +182,8 @@ class RadarPathSolver(PathSolver):
         C_re, C_im = zeros(K), zeros(K)
         if opts.coherent:
             wr, wi, m = coherent.coherent_field(ctx, st, surf, conn, depth)
-            if depth == 1 and opts.sms:       # curved lanes: the specular point instead
-                curved, lanes = specular.sms_lanes(ctx, st)
-                m = m & ~curved
-                sms = specular.sms_emission(ctx, st, lanes)
+            if opts.sms:            # chains on curved triangles: their specular points instead
+                m, sms = specular.sms_stage(ctx, st, m, depth)
                 out += [sms] if sms is not None else []
             if depth == 1:
                 C_re += dr.select(m, wr, 0.0)

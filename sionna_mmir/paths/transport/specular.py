@@ -72,15 +72,36 @@ def curved_faces(geo) -> np.ndarray:
     return dots < 1.0 - 1e-7
 
 
+def sms_stage(ctx, st, m, depth: int):
+    """``(mask, emission)``: the physical-optics mask ``m`` of the chains
+    ending here without the ones SMS replaces, and the SMS paths (or ``None``).
+
+    Depth 1: every interaction on a curved triangle is replaced.  Deeper
+    chains (monostatic, so reciprocal): a chain whose *last* vertex is
+    curved and first is not gives its specular point twice (itself and its
+    reversed twin), and chains that *start* on a curved triangle -- the
+    reversed twins, which the mirror continuation would carry with the
+    tangent-plane mirror of a curved surface -- are dropped.
+    """
+    curved, lanes = sms_lanes(ctx, st)
+    if depth == 1:
+        st.curved1 = curved
+        return m & ~curved, sms_emission(ctx, st, lanes, depth)
+    first = st.curved1 if st.curved1 is not None else dr.zeros(mi.Bool, st.width)
+    lanes = dr.compress(curved & ~first)
+    return m & ~curved & ~first, sms_emission(ctx, st, lanes, depth, twins=2.0)
+
+
 def sms_lanes(ctx, st):
-    """``(mask, indices)`` of the first interactions on curved triangles."""
+    """``(mask, indices)`` of the coherent chains' interactions on curved
+    triangles."""
     curved = ctx.tape.freeze_call(_curved_lanes, ctx, st)
     return curved, dr.compress(curved)
 
 
 def _curved_lanes(ctx, st):
     table = mi.Bool(curved_faces(ctx.geo))
-    return st.it.valid & dr.gather(mi.Bool, table, st.it.face, st.it.valid)
+    return st.it.valid & st.coh & dr.gather(mi.Bool, table, st.it.face, st.it.valid)
 
 
 def trial_weights(pos, obj, valid, n_seeds: int, rng, deterministic: bool) -> np.ndarray:
@@ -158,16 +179,36 @@ def merge_walks(pos, obj, W) -> np.ndarray:
     return out
 
 
-def _solve(ctx, st, lanes):
-    """Frozen ``(valid, obj, prim, u, v, W)`` of the walks seeded at ``lanes``."""
+def _image(st, lanes, c):
+    """``U^-1(c)``: the array centre seen through the chain's mirrors (the
+    walk's virtual source; ``c`` itself at depth 1) and ``U`` at ``lanes``."""
+    cols = [mi.Vector3f(*(_take(col[i], lanes) for i in range(3))) for col in st.U[0]]
+    off = mi.Vector3f(*(_take(st.U[1][i], lanes) for i in range(3)))
+    d = c - off                                       # U is orthogonal: U^-1 = A^T (y - off)
+    return mi.Point3f(*(dr.dot(col, d) for col in cols)), (cols, off)
+
+
+def _take(arr, idx):
+    """``arr[idx]``; a width-1 ``arr`` (the identity ``U`` of depth 1) broadcast."""
+    if dr.width(arr) == 1:
+        return dr.zeros(mi.Float, dr.width(idx)) + arr
+    return dr.gather(mi.Float, arr, idx)
+
+
+def _solve(ctx, st, lanes, depth):
+    """Frozen ``(valid, obj, prim, u, v, W, lane)`` of the specular points
+    found from ``lanes`` (``lane``: the chain that carries each)."""
     tape, geo = ctx.tape, ctx.geo
     if tape.replaying:
-        return [tape.freeze(None) for _ in range(6)]
-    c = dr.detach(ctx.c_w)
-    seed = dr.gather(mi.Point3f, dr.detach(st.it.p), lanes)
-    sol = solve_specular(geo.scene, c, c, seed, max_iter=40, tol=1e-6)
+        return [tape.freeze(None) for _ in range(7)]
+    with dr.suspend_grad():
+        c = dr.detach(ctx.c_w)
+        a, _ = _image(st, lanes, c)
+        seed = mi.Point3f(*(dr.gather(mi.Float, dr.detach(st.it.p[i]), lanes) for i in range(3)))
+        sol = solve_specular(geo.scene, dr.detach(a), c, seed, max_iter=40, tol=1e-6,
+                             trace_a=depth == 1)
     x = np.stack([np.asarray(sol.position[i], dtype=np.float64) for i in range(3)], axis=1)
-    rng = np.random.default_rng(int(ctx.options.seed) + 0x5EED)
+    rng = np.random.default_rng(int(ctx.options.seed) + 0x5EED + depth)
     obj = np.asarray(sol.object_id, dtype=np.int64)
     W = trial_weights(x, obj, np.asarray(sol.valid, dtype=bool), int(ctx.n_est), rng,
                       ctx.sampler.deterministic_chains)
@@ -176,43 +217,58 @@ def _solve(ctx, st, lanes):
     out = (mi.Bool(True) & dr.gather(mi.Bool, sol.valid, keep),
            dr.gather(mi.UInt32, sol.object_id, keep), dr.gather(mi.UInt32, sol.prim_index, keep),
            dr.gather(mi.Float, sol.bary.x, keep), dr.gather(mi.Float, sol.bary.y, keep),
-           mi.Float(W[W > 0].astype(np.float32)))
+           mi.Float(W[W > 0].astype(np.float32)), dr.gather(mi.UInt32, lanes, keep))
     return [tape.freeze(v) for v in out]
 
 
-def sms_emission(ctx, st, lanes) -> Emission | None:
-    """The specular points found from ``lanes`` as depth-1 paths (see the
-    module docstring); ``None`` when there are none."""
+def sms_emission(ctx, st, lanes, depth: int = 1, twins: float = 1.0) -> Emission | None:
+    """The specular points found from ``lanes`` as paths of ``depth``
+    interactions (see the module docstring), ``twins`` times; ``None`` when
+    there are none."""
     if dr.width(lanes) == 0:
         return None
-    valid, obj, prim, u0, v0, W = _solve(ctx, st, lanes)
+    valid, obj, prim, u0, v0, W, lane = _solve(ctx, st, lanes, depth)
     M = dr.width(valid)
     if M == 0:
         return None
     sol = SpecularSolution(valid=valid, shape=None, object_id=obj, prim_index=prim,
                            bary=mi.Point2f(u0, v0), position=None, normal=None,
                            iterations=None, error=None)
-    c = dr.zeros(mi.Point3f, M) + ctx.c_w
-    x, u, v, ar, ai = stationary_phase(ctx.geo.scene, sol, c, c, ctx.k_wave)
+    c = mi.Point3f(*(dr.zeros(mi.Float, M) + ctx.c_w[i] for i in range(3)))
+    a, (cols, off) = _image(st, lane, c)
+    x, u, v, ar, ai = stationary_phase(ctx.geo.scene, sol, a, c, ctx.k_wave)
     face = dr.gather(mi.UInt32, ctx.geo._face_offset, dr.select(valid, obj, 0)) + prim
     it = ctx.geo.interaction(valid, obj, face, u, v)
-    k_in = dr.normalize(x - c)
+    k_in, k_t = dr.normalize(x - a), dr.normalize(c - x)
     n = dr.select(dr.dot(it.n, k_in) > 0, -it.n, it.n)
     cos_i = dr.maximum(-dr.dot(k_in, n), 0.0)
-    eps = complex_permittivity(it.mat[0], it.mat[1], backend="drjit")
-    sc = slab_coefficients(cos_i, eps, it.mat[5], ctx.frequency, backend="drjit")
+    sc = slab_coefficients(cos_i, complex_permittivity(it.mat[0], it.mat[1], backend="drjit"),
+                           it.mat[5], ctx.frequency, backend="drjit")
     pose = ctx.pose
-    e_r = pose.to_scene(ctx.prx.polarization(pose.to_radar(k_in)))
-    E = reflect_field(Field(transverse(e_r, k_in)), k_in, n, sc.r_s, sc.r_p)
-    k_t = -k_in
+    E = reflect_field(_incident(ctx, st, lane, k_in, depth), k_in, n, sc.r_s, sc.r_p)
     e_t = transverse(pose.to_scene(ctx.ptx.polarization(pose.to_radar(-k_t))), k_t)
     pr, pi_ = E.dot(e_t)
     eta_b = dr.exp(-dr.square(ctx.k_wave * it.mat[2] * 2.0 * cos_i))
-    scale = cos_i * dr.sqrt(eta_b) * W / (4.0 * math.pi * ctx.n_est)
+    scale = twins * cos_i * dr.sqrt(eta_b) * W / (4.0 * math.pi * ctx.n_est)
     wr, wi = -pi_ * scale, pr * scale            # j (pr + j pi)
     m = valid & (W > 0) & (cos_i > 0)
-    rate = vertex_rate(ctx.velocities, obj, k_in, k_t)
-    rate = (rate - dr.detach(dr.dot(ctx.v_radar, k_in) + dr.dot(ctx.v_radar, -k_t))) \
+    k0 = k_in if depth == 1 else dr.gather(mi.Vector3f, st.k0, lane)
+    rate = dr.gather(mi.Float, st.rate_chain, lane) + vertex_rate(ctx.velocities, obj, k_in, k_t)
+    rate = (rate - dr.detach(dr.dot(ctx.v_radar, k0) + dr.dot(ctx.v_radar, -k_t))) \
         / SPEED_OF_LIGHT
+    x_rx = mi.Point3f(cols[0] * x.x + cols[1] * x.y + cols[2] * x.z + off)     # U(x)
+    obj1 = obj if depth == 1 else dr.gather(mi.UInt32, st.obj1, lane)
     return Emission(dr.select(m, wr * ar - wi * ai, 0.0), dr.select(m, wr * ai + wi * ar, 0.0),
-                    x, x, zeros(M), zeros(M), rate, 1, m, obj)
+                    x, x_rx, zeros(M), zeros(M), rate, depth, m, obj1)
+
+
+def _incident(ctx, st, lane, k_in, depth: int) -> Field:
+    """The field arriving at the specular point along ``k_in``: the receiver
+    element's polarisation at depth 1, else the chain's Jones vector made
+    transverse to ``k_in``."""
+    if depth == 1:
+        pose = ctx.pose
+        return Field(transverse(pose.to_scene(ctx.prx.polarization(pose.to_radar(k_in))), k_in))
+    re = mi.Vector3f(*(dr.gather(mi.Float, st.E.re[i], lane) for i in range(3)))
+    im = mi.Vector3f(*(dr.gather(mi.Float, st.E.im[i], lane) for i in range(3)))
+    return Field(re - k_in * dr.dot(re, k_in), im - k_in * dr.dot(im, k_in))

@@ -138,6 +138,9 @@ class PathState:
         :func:`.aperture.clip`.  ``None`` for random rays.
     lit : mi.Float or None
         Lit fraction of the node's cell for the current chain (``None``: 1).
+    curved1 : mi.Bool or None
+        The first interaction is on a curved triangle (specular manifold
+        sampling, :mod:`.specular`; ``None`` without it).
     """
 
     it: object
@@ -163,6 +166,7 @@ class PathState:
     aperture: object = None
     fan: tuple | None = None
     lit: object = None
+    curved1: object = None
 
     @property
     def width(self) -> int:
