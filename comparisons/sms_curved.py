@@ -41,6 +41,11 @@ SMS
 
 The timing rows give forward + backward (gradient of the summed power with
 respect to the target's vertex positions) with SMS off and on.
+
+A second table: depth 2, the icosphere 0.6 m above a 5.5 m x 4 m metal
+floor; the floor-sphere chains (both orders) against twice the
+image-source closed form of geometric optics (the radar's image in the
+floor lights the sphere; ``tests/test_sms_solver.py``).
 """
 from __future__ import annotations
 
@@ -187,6 +192,51 @@ def rows():
     return out
 
 
+def floor_rows():
+    """Depth-2 floor-sphere chains: ``{closed, po20000, ..., sms200000}`` [dB re the closed form]."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    import trimesh
+
+    import test_sms_solver as T
+    from sionna_mmir.paths import RadarPathSolver
+    from sionna_mmir.radar import RadarConfig
+    from sionna_mmir.scene import load_scene
+
+    radar = RadarConfig.dense(1, 1)
+    c = np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0)
+    a, hf, R = 0.3, 0.6, 3.0
+    centre = c + np.array([R + a, 0, 0])
+    fz = c[2] - hf
+    floor = trimesh.Trimesh(np.array([[c[0] + 0.5, -2, fz], [c[0] + 6, -2, fz],
+                                      [c[0] + 6, 2, fz], [c[0] + 0.5, 2, fz]]),
+                            [[0, 1, 2], [0, 2, 3]], process=False)
+    scene = load_scene({"sphere": T._sphere(a, centre, 5), "floor": floor},
+                       materials={"sphere": "metal", "floor": "metal"}, radar=radar)
+    image = c.copy()
+    image[2] = 2 * fz - c[2]
+    ref = 2 * LAM / (4 * np.pi) * T._bistatic_sphere_go(a, centre, image, c)
+    out = {"closed": float(20 * np.log10(ref))}
+    for n in RAYS:
+        for sms in (False, True):
+            p = RadarPathSolver()(scene, max_depth=2, num_rays=n, seed=1, cone_angle_deg=20,
+                                  scattering=False, tx_pattern="iso", rx_pattern="iso", sms=sms)
+            amp, tau, _ = p.numpy()
+            coef = (amp[0, 0] * np.exp(2j * np.pi * F0 * tau[0, 0]))[p.depth == 2].sum()
+            out[f"{'sms' if sms else 'po'}{n}"] = float(20 * np.log10(abs(coef) / ref))
+    print("floor", out, flush=True)
+    return out
+
+
+def floor_table(r) -> str:
+    return ("\n\nDepth 2, sphere (a = 0.3 m, R = 3 m) 0.6 m above a metal floor: the "
+            "floor-sphere chains' amplitude, dB re twice the image-source closed form "
+            f"({r['closed']:.1f} dB re 1).\n\n"
+            "| mirror chains 20k | mirror chains 200k | SMS 20k | SMS 200k |\n"
+            "|---|---|---|---|\n"
+            f"| {r['po20000']:+.2f} | {r['po200000']:+.2f} | {r['sms20000']:+.2f} | "
+            f"{r['sms200000']:+.2f} |\n")
+
+
 def table(res) -> str:
     head = ("| target | a [m] | L [m] | R [m] | truth (brute-force PO) | geometric optics | "
             "far-field closed form | image method | PO 20k | PO 200k | SMS 20k | SMS 200k | "
@@ -209,12 +259,13 @@ def table(res) -> str:
 
 def main():
     res = rows()
+    res["floor"] = floor_rows()
     out = ROOT / "comparisons" / "sms_curved"
     out.with_suffix(".json").write_text(json.dumps(res, indent=1))
     md = out.with_suffix(".md")
     text = md.read_text() if md.exists() else ""
     marker = "<!-- table -->"
-    body = table(res)
+    body = table(res) + floor_table(res["floor"])
     md.write_text(text.split(marker)[0] + marker + "\n" + body if marker in text else body)
     print(body)
 

@@ -4,19 +4,22 @@ On a curved object tessellated finely (or coarsely, with interpolated
 vertex normals) the mirror direction at the point a ray happened to hit
 leaves the hit triangle: the reflection towards the transmitter happens at a
 point of another triangle, and on a smooth-shaded mesh no flat facet holds
-it at all.  With ``SolverOptions.sms`` every first interaction on a *curved*
-triangle (its three vertex normals differ) seeds the Newton walk of
-:func:`sionna_mmir.paths.sms.solve_specular` (Zeltner, Georgiev & Jakob,
-"Specular manifold sampling for rendering high-frequency caustics and
+it at all.  With ``SolverOptions.sms`` every interaction of a coherent chain
+on a *curved* triangle (its three vertex normals differ) seeds the Newton
+walk of :func:`sionna_mmir.paths.sms.solve_specular` (Zeltner, Georgiev &
+Jakob, "Specular manifold sampling for rendering high-frequency caustics and
 glints", ACM TOG 39(4), 2020), which moves on the mesh, re-projecting onto
-it after every step, until the half-vector of the array centre seen twice
-(monostatic) is the interpolated normal.  The specular point ``x`` radiates
-the stationary-phase value of the physical-optics integral
+it after every step, until the half-vector of ``a -> x -> c`` is the
+interpolated normal; ``c`` is the array centre and ``a = U^-1(c)`` the
+array seen through the chain's earlier mirrors (``c`` itself at depth 1:
+monostatic).  The specular point ``x`` radiates the stationary-phase value
+of the physical-optics integral
 (:func:`sionna_mmir.paths.sms.stationary_phase`)::
 
     C = j / (4 pi) (e_t . E_refl) cos_i sqrt(eta_b) A_sp(x) W / N,
 
-``A_sp = 2 pi / (k sqrt|det H|) exp(-j pi sig(H) / 4)`` and ``W`` the
+``A_sp = 2 pi / (k sqrt|det H|) exp(-j pi sig(H) / 4)``, ``E_refl`` the
+chain's Jones vector reflected at ``x`` and ``W`` the
 estimate of ``1 / p(x)``, ``p(x)`` the probability that a seed converges to
 ``x``.  ``W`` follows Zeltner et al.'s Bernoulli-trial estimator: trials draw
 seeds from the same ``N`` candidates, a trial succeeds when its walk ends at
@@ -27,6 +30,11 @@ over the seeds an unbiased estimate of the sum over the specular points the
 walks find.  Under the deterministic facet quadrature ``W = N / c(x)``.
 The seeds that reached one specular point are merged into one path carrying
 their summed ``W`` (:func:`merge_walks`).
+Multi-bounce chains (:func:`sms_stage`): the radar is monostatic, so a chain
+and its reversal are the same field; a chain whose last vertex is curved and
+first is flat is emitted for both, and the chains that start on a curved
+triangle (which the mirror continuation carries with the tangent-plane
+mirror of a curved surface, the image method's error) are dropped.
 These lanes' own physical-optics term is dropped (the stationary-phase value
 replaces the integral over the curved surface they sample).
 
@@ -37,7 +45,11 @@ visibility are detached and frozen on the tape (a replay re-uses them).
 
 Limits: stationary phase needs the first Fresnel zone about ``x`` to lie on
 the curved surface (no truncation by its rim) and a non-degenerate ``H``;
-chains of two or more specular bounces keep the mirror continuation.
+the earlier vertices of a chain are taken as plane mirrors (exact for flat
+ones; a curved vertex in the middle of a chain keeps its tangent-plane
+mirror); chains that start and end on curved triangles are dropped; the
+segment from ``x`` back to the chain's previous vertex is not traced for
+visibility; the two orders of a chain share one set of per-element legs.
 """
 from __future__ import annotations
 
