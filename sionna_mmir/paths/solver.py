@@ -18,7 +18,10 @@ call runs the transport stages of :mod:`.transport` in order:
 2. connection -- the shadow ray to the Tx;
 3. coherent -- the physical-optics field of specular chains (the exit
    aperture on the last surface; under the facet quadrature clipped to
-   each node's lit footprint, :mod:`.transport.aperture`);
+   each node's lit footprint, :mod:`.transport.aperture`); with ``sms``
+   the specular points of chains on curved triangles instead
+   (:mod:`.transport.specular`), with ``fsd_coherent`` blocked connections
+   through the edges (:mod:`.transport.fsd_coherent`);
 4. scattered -- the BSDF speckle field and its reciprocal twin;
 5. continuation -- mirror or BSDF sample (or FSD diffraction), roulette,
    the next segment;

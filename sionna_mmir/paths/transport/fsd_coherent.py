@@ -108,22 +108,26 @@ def boundary_edges(geo) -> dict | None:
 
 
 def _select(edges, x, c, wavelength):
-    """``(query, edge)`` pairs: up to :data:`MAX_EDGES` boundary edges near each
-    segment ``x [Q, 3] -> c [3]`` (numpy, detached)."""
+    """``(query, edge)`` pairs: up to :data:`MAX_EDGES` boundary edges within
+    :data:`SELECT` Fresnel radii of each segment ``x [Q, 3] -> c [3]``
+    (ten points along it; numpy, detached)."""
     d = np.linalg.norm(c[None] - x, axis=1)
     radius = SELECT * np.sqrt(wavelength * np.maximum(d, 1e-3) / 4.0)
-    found = [set() for _ in range(len(x))]
+    qs, es = [], []
+    rows = np.arange(len(x))
     for f in np.linspace(0.05, 0.95, 10):
-        pts = x + f * (c[None] - x)
-        for r in np.unique(np.round(radius, 3)):
-            rows = np.flatnonzero(np.round(radius, 3) == r)
-            idx, ok = edges["index"].query(pts[rows], float(r), max_edges=MAX_EDGES)
-            for q, i, o in zip(rows, idx, ok):
-                if len(found[q]) < MAX_EDGES:
-                    found[q].update(int(e) for e in i[o][:MAX_EDGES - len(found[q])])
-    qs = np.array([q for q, s in enumerate(found) for _ in s], dtype=np.int64)
-    es = np.array([e for s in found for e in sorted(s)], dtype=np.int64)
-    return qs, es
+        idx, ok, dist = edges["index"].query(x + f * (c[None] - x), float(radius.max()),
+                                             max_edges=MAX_EDGES, return_distance=True)
+        ok &= dist < radius[:, None]
+        qs.append(np.broadcast_to(rows[:, None], idx.shape)[ok])
+        es.append(idx[ok])
+    q, e = np.concatenate(qs), np.concatenate(es)
+    n_e = int(e.max()) + 1 if e.size else 1
+    key = np.unique(q * n_e + e)                 # sorted by query, then edge
+    q, e = key // n_e, key % n_e
+    rank = np.arange(len(q)) - np.searchsorted(q, q)      # position within its query
+    keep = rank < MAX_EDGES
+    return q[keep], e[keep]
 
 
 def edge_field(geo, edges, x, c, wavelength: float, tape, seed: int = 0, check_visible=True):
