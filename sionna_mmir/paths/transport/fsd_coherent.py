@@ -72,7 +72,7 @@ NODES = 256
 #: footprint width in Fresnel zones along the edge, and its extent in widths
 FOOTPRINT = 1.5
 EXTENT = 3.5
-#: edges further from the segment x -> c than this many Fresnel radii are skipped
+#: edges whose Fresnel parameter seen from the segment x -> c exceeds this are skipped
 SELECT = 8.0
 #: most edges per connection
 MAX_EDGES = 4
@@ -108,26 +108,52 @@ def boundary_edges(geo) -> dict | None:
 
 
 def _select(edges, x, c, wavelength):
-    """``(query, edge)`` pairs: up to :data:`MAX_EDGES` boundary edges within
-    :data:`SELECT` Fresnel radii of each segment ``x [Q, 3] -> c [3]``
-    (ten points along it; numpy, detached)."""
+    """``(query, edge)`` pairs: up to :data:`MAX_EDGES` boundary edges whose
+    Fresnel parameter ``nu = delta sqrt(2 / (lambda d f (1 - f)))`` seen from
+    the segment ``x [Q, 3] -> c [3]`` is below :data:`SELECT` (``delta`` the
+    distance between the edge and the segment, reached at the fraction ``f``
+    of its length ``d``: the edges of the surface holding ``x`` itself have
+    ``f -> 0`` and drop out), smallest first (numpy, detached)."""
     d = np.linalg.norm(c[None] - x, axis=1)
-    radius = SELECT * np.sqrt(wavelength * np.maximum(d, 1e-3) / 4.0)
+    radius = SELECT * np.sqrt(wavelength * np.maximum(d, 1e-3) / 8.0)   # nu < SELECT at f = 1/2
     qs, es = [], []
     rows = np.arange(len(x))
     for f in np.linspace(0.05, 0.95, 10):
         idx, ok, dist = edges["index"].query(x + f * (c[None] - x), float(radius.max()),
-                                             max_edges=MAX_EDGES, return_distance=True)
+                                             max_edges=4 * MAX_EDGES, return_distance=True)
         ok &= dist < radius[:, None]
         qs.append(np.broadcast_to(rows[:, None], idx.shape)[ok])
         es.append(idx[ok])
     q, e = np.concatenate(qs), np.concatenate(es)
     n_e = int(e.max()) + 1 if e.size else 1
-    key = np.unique(q * n_e + e)                 # sorted by query, then edge
+    key = np.unique(q * n_e + e)
     q, e = key // n_e, key % n_e
+    src = edges["index"].edges
+    delta, frac = _segment_distance(x[q], np.broadcast_to(c, x[q].shape), src.p0[e], src.p1[e])
+    nu = delta * np.sqrt(2.0 / (wavelength * d[q] * np.maximum(frac * (1.0 - frac), 1e-12)))
+    good = nu < SELECT
+    q, e, nu = q[good], e[good], nu[good]
+    order = np.lexsort((nu, q))
+    q, e = q[order], e[order]
     rank = np.arange(len(q)) - np.searchsorted(q, q)      # position within its query
     keep = rank < MAX_EDGES
     return q[keep], e[keep]
+
+
+def _segment_distance(a0, a1, b0, b1):
+    """``(distance, s)`` between segments ``a0 a1`` and ``b0 b1`` (rows), ``s``
+    the fraction along ``a`` of the closest point (Ericson, *Real-Time
+    Collision Detection*, 5.1.9)."""
+    d1, d2, r = a1 - a0, b1 - b0, a0 - b0
+    a, e, f = (d1 * d1).sum(1), (d2 * d2).sum(1), (d2 * r).sum(1)
+    c_, b = (d1 * r).sum(1), (d1 * d2).sum(1)
+    den = np.maximum(a * e - b * b, 1e-30)
+    s = np.clip((b * f - c_ * e) / den, 0.0, 1.0)
+    t = (b * s + f) / np.maximum(e, 1e-30)
+    s = np.where(t < 0, np.clip(-c_ / np.maximum(a, 1e-30), 0, 1), s)
+    s = np.where(t > 1, np.clip((b - c_) / np.maximum(a, 1e-30), 0, 1), s)
+    t = np.clip(t, 0.0, 1.0)
+    return np.linalg.norm(a0 + d1 * s[:, None] - (b0 + d2 * t[:, None]), axis=1), s
 
 
 def edge_field(geo, edges, x, c, wavelength: float, tape, seed: int = 0, check_visible=True):
