@@ -160,3 +160,11 @@ def test_solver_knife_edge_per_path_within_1db(nu):
         j = np.argmin(np.linalg.norm(x_fsd - x, axis=1))
         nu_i = (h - (x[2] - c[2]) / 2) * per_m
         assert abs(20 * np.log10(a_fsd[j] / a / abs(_closed(nu_i)))) < 1.0
+
+
+def test_replay_reproduces_the_diffracted_paths():
+    scene = _blocked_scene()
+    kw = dict(max_depth=2, num_rays=20_000, seed=1, scattering=False, fsd_coherent=True)
+    p = RadarPathSolver()(scene, **kw)
+    q = RadarPathSolver()(scene, samples=p.samples, **kw)
+    np.testing.assert_array_equal(p.numpy()[0], q.numpy()[0])

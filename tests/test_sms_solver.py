@@ -202,3 +202,14 @@ def test_floor_bounce_chain_within_1db_of_geometric_optics():
         out[sms] = 20 * np.log10(abs(coef) / ref)
     assert abs(out[True]) < 1.0
     assert abs(out[False]) > 1.0
+
+
+def test_replay_reproduces_the_sms_paths():
+    """Frozen samples (``samples=``) replay the walks, trial counts and masks."""
+    radar, c = _radar()
+    scene = load_scene({"t": _sphere(0.3, c + [R + 0.3, 0, 0], 4)}, materials={"t": "metal"},
+                       radar=radar)
+    kw = dict(max_depth=2, num_rays=20_000, seed=1, sms=True)
+    p = RadarPathSolver()(scene, **kw)
+    q = RadarPathSolver()(scene, samples=p.samples, **kw)
+    np.testing.assert_array_equal(p.numpy()[0], q.numpy()[0])

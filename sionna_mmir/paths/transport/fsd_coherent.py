@@ -43,6 +43,8 @@ visibility (detached, frozen on the tape).
 
 Only boundary edges (one adjacent face: thin screens, plates, LiDAR mesh
 borders) diffract; the open side is the one away from the adjacent face.
+A connection takes the edges whose Fresnel parameter seen from it is below
+:data:`SELECT` (:func:`_select`), at most :data:`MAX_EDGES`.
 
 Output: the ratio ``D = U_d(c) / (e^{-j k |c - x|} / |c - x|)`` -- the
 diffracted field relative to the unobstructed one -- so that the solver's
