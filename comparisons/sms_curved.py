@@ -33,6 +33,9 @@ image method
     flat facet's plane projects inside that facet (the rule of
     Sionna RT's image method), radiating the plane-mirror field
     (``sigma = pi R^2`` per facet);
+Sionna RT
+    plain Sionna RT's own ``PathSolver`` (image method, specular only, 2M
+    rays; :class:`sionna_mmir.baseline.SionnaBaseline`);
 PO, random rays
     the solver without SMS (Monte Carlo physical optics over the hit
     triangles), 20k and 200k rays in a cone just covering the target;
@@ -152,6 +155,19 @@ def solver_rcs(mesh, R, n, sms, grad=False):
     return rcs_dbsm(coef, R), time.perf_counter() - t0
 
 
+def sionna_rcs(mesh, R):
+    """RCS [dBsm] from plain Sionna RT (specular reflection only), or -inf."""
+    from sionna_mmir.baseline.sionna_rt import SionnaBaseline
+    from sionna_mmir.radar import RadarConfig
+
+    bl = SionnaBaseline({"t": mesh}, {"t": "metal"}, RadarConfig.dense(1, 1), max_depth=1,
+                        samples_per_src=2_000_000, diffuse_reflection=False)
+    a_re, a_im, tau = bl.pair_paths(bl.trace())
+    amp = np.asarray(a_re) + 1j * np.asarray(a_im)
+    coef = (amp * np.exp(2j * np.pi * F0 * np.asarray(tau))).sum()
+    return rcs_dbsm(coef, R) if abs(coef) > 0 else float("-inf")
+
+
 def truth_rcs(mesh, R):
     from sionna_mmir.independent import render_reference
     from sionna_mmir.radar import RadarConfig
@@ -180,6 +196,7 @@ def rows():
         im = image_method(mesh, c)
         row["image"] = (float(10 * np.log10(abs(im) ** 2 * R ** 4)) if abs(im) > 0
                         else float("-inf"))
+        row["sionna"] = sionna_rcs(mesh, R)
         for n in RAYS:
             row[f"po{n}"], _ = solver_rcs(mesh, R, n, False)
             row[f"sms{n}"], _ = solver_rcs(mesh, R, n, True)
@@ -239,9 +256,9 @@ def floor_table(r) -> str:
 
 def table(res) -> str:
     head = ("| target | a [m] | L [m] | R [m] | truth (brute-force PO) | geometric optics | "
-            "far-field closed form | image method | PO 20k | PO 200k | SMS 20k | SMS 200k | "
+            "far-field closed form | image method | Sionna RT | PO 20k | PO 200k | SMS 20k | SMS 200k | "
             "fwd+bwd 20k off / on [s] (ratio) |\n|---|---|---|---|---|---|---|---|---|---|---|"
-            "---|---|\n")
+            "---|---|---|\n")
     lines = []
     for kind, a, L, R in TARGETS:
         r = res[kind]
@@ -251,7 +268,8 @@ def table(res) -> str:
             return "none" if not np.isfinite(v) else f"{v:.2f} ({v - t:+.2f})"
 
         lines.append(f"| {kind} | {a} | {L if L else '-'} | {R} | {t:.2f} | {cell(r['go'])} | "
-                     f"{cell(r['far'])} | {cell(r['image'])} | {cell(r['po20000'])} | "
+                     f"{cell(r['far'])} | {cell(r['image'])} | {cell(r['sionna'])} | "
+                     f"{cell(r['po20000'])} | "
                      f"{cell(r['po200000'])} | {cell(r['sms20000'])} | {cell(r['sms200000'])} | "
                      f"{r['t_off']:.2f} / {r['t_on']:.2f} ({r['t_on'] / r['t_off']:.1f}x) |")
     return head + "\n".join(lines) + "\n"

@@ -125,13 +125,9 @@ def test_solver_adds_differentiable_diffracted_paths():
     assert np.all(np.isfinite(g)) and np.abs(g).max() > 0
 
 
-@pytest.mark.parametrize("nu", [1.0, 2.5])
-def test_solver_knife_edge_per_path_within_1db(nu):
-    """In the solver: a side-wall bounce reaches a 4 cm plate 3 m away whose
-    connection back to the radar a screen's top edge blocks halfway (the
-    edge ``h`` above the line of sight); each diffracted path against the
-    same path without the screen is ``|F(nu_i)|``, ``nu_i`` from its own
-    point (1 dB)."""
+def _wall_scene(h, screen=True):
+    """A side-wall bounce to a 4 cm plate 3 m away; a screen halfway, its top
+    edge ``h`` above the plate's line of sight to the radar."""
     def rect(p0, u, v):
         p0 = np.asarray(p0, float)
         V = np.array([p0, p0 + u, p0 + np.add(u, v), p0 + v], float)
@@ -139,27 +135,67 @@ def test_solver_knife_edge_per_path_within_1db(nu):
 
     radar = RadarConfig.dense(1, 1)
     c = np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0)
-    per_m = np.sqrt(2 * 3.0 / (LAM * 1.5 * 1.5))
-    h = nu / per_m
-    wall = rect(c + [0.3, -1, -1], [0, 0, 2], [4, 0, 0])
-    target = rect(c + [3, -0.02, -0.02], [0, 0, 0.04], [0, 0.04, 0])
-    screen = rect(c + [1.5, -0.6, -2], [0, 2.6, 0], [0, 0, 2 + h])
+    meshes = {"wall": rect(c + [0.3, -1, -1], [0, 0, 2], [4, 0, 0]),
+              "target": rect(c + [3, -0.02, -0.02], [0, 0, 0.04], [0, 0.04, 0])}
+    if screen:
+        meshes["screen"] = rect(c + [1.5, -0.6, -2], [0, 2.6, 0], [0, 0, 2 + h])
+    return load_scene(meshes, materials={k: "metal" for k in meshes}, radar=radar), c
+
+
+WALL_KW = dict(max_depth=2, num_rays=200_000, seed=1, scattering=False, tx_pattern="iso",
+               rx_pattern="iso", cone_angle_deg=60)
+PER_M = np.sqrt(2 * 3.0 / (LAM * 1.5 * 1.5))
+
+
+def _target_paths(p, c):
+    g = p.geometry.numpy()
+    return (p.depth == 2) & (np.abs(g["x_tx"][:, 0] - c[0] - 3) < 1e-3), g["x_tx"]
+
+
+@pytest.mark.parametrize("nu", [1.0, 2.5])
+def test_solver_knife_edge_per_path_within_1db(nu):
+    """In the solver: each diffracted path against the same path without the
+    screen is ``|F(nu_i)|``, ``nu_i`` from its own point (1 dB)."""
+    h = nu / PER_M
     out = []
-    for meshes, on in (({"wall": wall, "target": target}, False),
-                       ({"wall": wall, "target": target, "screen": screen}, True)):
-        scene = load_scene(meshes, materials={k: "metal" for k in meshes}, radar=radar)
-        p = RadarPathSolver()(scene, max_depth=2, num_rays=200_000, seed=1, scattering=False,
-                              tx_pattern="iso", rx_pattern="iso", fsd_coherent=on,
-                              cone_angle_deg=60)
-        g = p.geometry.numpy()
-        sel = (p.depth == 2) & (np.abs(g["x_tx"][:, 0] - c[0] - 3) < 1e-3)
-        out.append((np.abs(p.numpy()[0][0, 0][sel]), g["x_tx"][sel]))
+    for on in (False, True):
+        scene, c = _wall_scene(h, screen=on)
+        p = RadarPathSolver()(scene, fsd_coherent=on, **WALL_KW)
+        sel, x = _target_paths(p, c)
+        out.append((np.abs(p.numpy()[0][0, 0][sel]), x[sel]))
     (a_open, x_open), (a_fsd, x_fsd) = out
     assert len(a_open) >= 3 and len(a_fsd) == len(a_open)
     for a, x in zip(a_open, x_open):
         j = np.argmin(np.linalg.norm(x_fsd - x, axis=1))
-        nu_i = (h - (x[2] - c[2]) / 2) * per_m
+        nu_i = (h - (x[2] - c[2]) / 2) * PER_M
         assert abs(20 * np.log10(a_fsd[j] / a / abs(_closed(nu_i)))) < 1.0
+
+
+def test_solver_knife_edge_gradient_matches_retraced_fd():
+    """d(power of the diffracted paths)/d(edge height) in the solver: AD
+    through the screen's vertices vs central FD of two re-traced calls."""
+    h = 1.5 / PER_M
+
+    def power(dh, grad=False):
+        scene, c = _wall_scene(h + dh)
+        obj = scene.mesh_objects["screen"]
+        t = mi.TensorXf(np.array(obj.vertex_positions, dtype=np.float32))
+        if grad:
+            dr.enable_grad(t)
+        obj.vertex_positions = t
+        p = RadarPathSolver()(scene, fsd_coherent=True, **WALL_KW)
+        sel, _ = _target_paths(p, c)
+        y = dr.sum(dr.select(mi.Bool(sel), dr.square(p.a_re) + dr.square(p.a_im), 0.0))
+        if not grad:
+            return float(y[0])
+        dr.backward(y)
+        g = np.array(dr.grad(t)).reshape(-1, 3)
+        return float(g[2, 2] + g[3, 2])               # the top edge's two vertices
+
+    ad = power(0.0, grad=True)
+    fd = (power(1e-3) - power(-1e-3)) / 2e-3
+    assert np.sign(ad) == np.sign(fd)
+    assert abs(ad - fd) < 0.05 * abs(fd)
 
 
 def test_replay_reproduces_the_diffracted_paths():
