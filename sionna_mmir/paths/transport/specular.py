@@ -27,7 +27,10 @@ seeds from the same ``N`` candidates, a trial succeeds when its walk ends at
 geometric with success probability ``c(x) / N`` (``c`` the candidates whose
 walk ends there) and is drawn as such; ``E[W] = N / c(x)`` makes the sum
 over the seeds an unbiased estimate of the sum over the specular points the
-walks find.  Under the deterministic facet quadrature ``W = N / c(x)``.
+walks find (``c(x) - 1`` is binomial, so the expectation over the candidates
+is the sum over all specular points, each times ``1 - (1 - p(x))^N``: the
+bias is the chance that no seed reaches a point, as for Zeltner et al.'s
+capped trials).  Under the deterministic facet quadrature ``W = N / c(x)``.
 The seeds that reached one specular point are merged into one path carrying
 their summed ``W`` (:func:`merge_walks`).
 Multi-bounce chains (:func:`sms_stage`): the radar is monostatic, so a chain
