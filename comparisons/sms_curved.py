@@ -78,7 +78,8 @@ def cylinder(a, L, centre, facet_on_axis: bool):
     off = np.pi / SIDES if facet_on_axis else 0.0
     th = 2 * np.pi * np.arange(SIDES) / SIDES + off + np.pi
     ring = np.c_[a * np.cos(th), a * np.sin(th)]
-    verts = np.concatenate([np.c_[ring, np.full(SIDES, -L / 2)], np.c_[ring, np.full(SIDES, L / 2)]])
+    verts = np.concatenate([np.c_[ring, np.full(SIDES, -L / 2)],
+                            np.c_[ring, np.full(SIDES, L / 2)]])
     i = np.arange(SIDES)
     j = (i + 1) % SIDES
     faces = np.concatenate([np.c_[i, j, j + SIDES], np.c_[i, j + SIDES, i + SIDES]])
@@ -210,7 +211,8 @@ def rows():
 
 
 def floor_rows():
-    """Depth-2 floor-sphere chains: ``{closed, po20000, ..., sms200000}`` [dB re the closed form]."""
+    """Depth-2 floor-sphere chains: ``{closed, po20000, ..., sms200000}``
+    [dB re the closed form]."""
     sys.path.insert(0, str(ROOT / "tests"))
     import trimesh
 
@@ -256,7 +258,8 @@ def floor_table(r) -> str:
 
 def table(res) -> str:
     head = ("| target | a [m] | L [m] | R [m] | truth (brute-force PO) | geometric optics | "
-            "far-field closed form | image method | Sionna RT | PO 20k | PO 200k | SMS 20k | SMS 200k | "
+            "far-field closed form | image method | Sionna RT | PO 20k | PO 200k | SMS 20k | "
+            "SMS 200k | "
             "fwd+bwd 20k off / on [s] (ratio) |\n|---|---|---|---|---|---|---|---|---|---|---|"
             "---|---|---|\n")
     lines = []

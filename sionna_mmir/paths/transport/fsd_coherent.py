@@ -286,7 +286,8 @@ def _times_sqrt_bias(z_re, z_im, k, sig, X, Cc, P0, t, tau_s):
         a, b = y - dr.detach(X), dr.detach(Cc) - y
         la, lb = dr.norm(a), dr.norm(b)
         tt = dr.detach(t)
-        h_t = (1.0 - dr.square(dr.dot(tt, a / la))) / la + (1.0 - dr.square(dr.dot(tt, b / lb))) / lb
+        h_t = ((1.0 - dr.square(dr.dot(tt, a / la))) / la
+               + (1.0 - dr.square(dr.dot(tt, b / lb))) / lb)
         eps = 1.0 / (k * h_t * dr.square(sig))
         # sqrt(1 - j eps) in polar form
         mod = dr.sqrt(dr.sqrt(1.0 + eps * eps))
