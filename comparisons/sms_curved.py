@@ -12,8 +12,8 @@ boresight:
 * an open cylinder (side wall only) of radius ``a`` and length ``L``, 256
   sides, axis vertical, smooth vertex normals; the radar faces the centre
   of a facet ("facet") or a vertical edge between two facets ("edge");
-* an icosphere of radius ``a`` (5 subdivisions, 20 480 faces), smooth
-  vertex normals.
+* an icosphere of radius ``a`` ("sphere-5": 5 subdivisions, 20 480 faces;
+  "sphere-7": 7 subdivisions, 327 680 faces), smooth vertex normals.
 
 Columns (RCS in dBsm, ``|a|^2 (4 pi)^3 R^4 / lambda^2``):
 
@@ -67,7 +67,7 @@ F0 = 77e9
 LAM = C / F0
 SIDES = 256
 TARGETS = [("cylinder-facet", 0.2, 0.6, 3.0), ("cylinder-edge", 0.2, 0.6, 3.0),
-           ("sphere", 0.3, 0.0, 3.0)]
+           ("sphere-5", 0.3, 0.0, 3.0), ("sphere-7", 0.3, 0.0, 3.0)]
 RAYS = (20_000, 200_000)
 
 
@@ -94,8 +94,8 @@ def target(kind, a, L, point):
     import trimesh
 
     centre = point + np.array([a, 0.0, 0.0])
-    if kind == "sphere":
-        m = trimesh.creation.icosphere(subdivisions=5, radius=a)
+    if kind.startswith("sphere"):
+        m = trimesh.creation.icosphere(subdivisions=int(kind.split("-")[1]), radius=a)
         m.apply_translation(centre)
         return m
     return cylinder(a, L, centre, kind == "cylinder-facet")
@@ -189,10 +189,10 @@ def rows():
     out = {}
     for kind, a, L, R in TARGETS:
         mesh = target(kind, a, L, c + np.array([R, 0.0, 0.0]))
-        go = (np.pi * R ** 2 * a ** 2 / (R + a) ** 2 if kind == "sphere"
+        go = (np.pi * R ** 2 * a ** 2 / (R + a) ** 2 if kind.startswith("sphere")
               else np.pi * R ** 2 * a / (R + a))
         row = {"truth": truth_rcs(mesh, R), "go": float(10 * np.log10(go)),
-               "far": float(10 * np.log10(np.pi * a * a if kind == "sphere"
+               "far": float(10 * np.log10(np.pi * a * a if kind.startswith("sphere")
                                           else 2 * np.pi * a * L ** 2 / LAM))}
         im = image_method(mesh, c)
         row["image"] = (float(10 * np.log10(abs(im) ** 2 * R ** 4)) if abs(im) > 0
