@@ -61,6 +61,17 @@ class SolverOptions:
         Integrate the physical-optics phase exactly over each hit triangle.
     diffraction : bool
         Free-space diffraction (FSD) at boundary and crease edges.
+    fsd_coherent : bool
+        Coherent free-space diffraction: a coherent chain whose connection
+        to the array is blocked reaches it through the boundary edges that
+        block it, with phase, Jones polarisation and gradients
+        (:mod:`.transport.fsd_coherent`); exclusive with ``diffraction``
+        (the power-only FSD continuation).
+    sms : bool
+        Specular manifold sampling on curved (smooth-shaded) triangles: the
+        first interactions there seed a Newton walk to the specular point,
+        which radiates the stationary-phase value of the physical-optics
+        integral (:mod:`.transport.specular`).
     fsd_width : float or None
         Gaussian footprint of the FSD lobe [m] (default 3 wavelengths).
     rr_depth : int
@@ -93,6 +104,8 @@ class SolverOptions:
     reciprocal: bool = True
     triangle_average: bool = True
     diffraction: bool = False
+    fsd_coherent: bool = False
+    sms: bool = False
     fsd_width: float | None = None
     rr_depth: int = 2
     facet_fresnel: float = 0.5
@@ -197,10 +210,13 @@ def _validate(o: SolverOptions) -> None:
         if not ok:
             raise ConfigError(f"solver option {name} must be {what}, got {getattr(o, name)!r}")
     for name in ("coherent", "scattering", "reciprocal", "triangle_average", "diffraction",
-                 "check_inside"):
+                 "fsd_coherent", "sms", "check_inside"):
         if not isinstance(getattr(o, name), (bool, numbers.Integral)):
             raise ConfigError(f"solver option {name} must be True or False, "
                               f"got {getattr(o, name)!r}")
+    if o.diffraction and o.fsd_coherent:
+        raise ConfigError("solver options diffraction (power-only FSD) and fsd_coherent "
+                          "(coherent FSD) exclude each other; set one")
     if o.velocities is not None and not isinstance(o.velocities, dict):
         raise ConfigError(f"solver option velocities must be a dict object -> (vx, vy, vz), "
                           f"got {type(o.velocities).__name__}")

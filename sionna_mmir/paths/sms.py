@@ -115,8 +115,8 @@ init_backend()
 import drjit as dr  # noqa: E402  (after init_backend, on purpose)
 import mitsuba as mi  # noqa: E402
 
-__all__ = ["SpecularSolution", "solve_specular", "specular_point_ad", "object_names",
-           "NO_OBJECT"]
+__all__ = ["SpecularSolution", "solve_specular", "specular_point_ad", "stationary_phase",
+           "object_names", "NO_OBJECT"]
 
 #: ``object_id`` of lanes without a triangle.
 NO_OBJECT = 0xFFFFFFFF
@@ -361,7 +361,7 @@ def _project_seed(scene, tables, a, b, seed):
 
 
 def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
-                   step_limit=None) -> SpecularSolution:
+                   step_limit=None, trace_a: bool = True) -> SpecularSolution:
     """Find reflection points ``x`` on the scene's meshes for ``a -> x -> b``.
 
     Runs without AD (see the module docstring).  Returns a
@@ -379,6 +379,9 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
         on ``|C|`` (~ angle between h and n) [rad].
     step_limit : float or mi.Float, optional
         Largest step [m]; default a quarter of the shorter distance from x to a or b.
+    trace_a : bool, optional
+        Trace the shadow ray ``x -> a`` (off when ``a`` is a virtual source,
+        the image of a point seen through mirrors).
     """
     tables = _Tables(scene, detach=True)
     if int(max_iter) < 0:
@@ -464,22 +467,27 @@ def solve_specular(scene, a, b, seed, max_iter: int = 30, tol: float = 1e-5,
         front = ((dr.dot(da, nrm) > 0) & (dr.dot(db, nrm) > 0)
                  & (dr.dot(da, ng) > 0) & (dr.dot(db, ng) > 0))
         check = converged & front
-        eps = mi.math.RayEpsilon * _scene_scale(x)
-        o = x + ng * eps
-        visible = mi.Bool(check)
-        for target in (a, b):
-            d = target - o
-            dist = dr.norm(d)
-            ray = mi.Ray3f(o, d / dist)
-            ray.maxt = dist * (1.0 - mi.math.ShadowEpsilon)
-            visible &= ~scene.mi_scene.ray_test(ray, check)
-        valid = check & visible
+        valid = check & _visible(scene, x, ng, (a, b) if trace_a else (b,), check)
         sol = SpecularSolution(
             valid=valid, shape=tables.shapes(obj), object_id=obj, prim_index=mi.UInt32(prim),
             bary=mi.Point2f(u, v), position=mi.Point3f(x), normal=mi.Vector3f(nrm),
             iterations=iterations, error=dr.select(dr.isfinite(err), err, dr.inf))
         dr.eval(sol)
     return sol
+
+
+def _visible(scene, x, ng, targets, check):
+    """Shadow rays from ``x`` (offset along ``ng`` by Mitsuba's ``RayEpsilon``
+    scale) to every target unoccluded."""
+    o = x + ng * (mi.math.RayEpsilon * _scene_scale(x))
+    visible = mi.Bool(check)
+    for target in targets:
+        d = target - o
+        dist = dr.norm(d)
+        ray = mi.Ray3f(o, d / dist)
+        ray.maxt = dist * (1.0 - mi.math.ShadowEpsilon)
+        visible &= ~scene.mi_scene.ray_test(ray, check)
+    return visible
 
 
 def _select_tree(mask, new, old):
@@ -491,31 +499,9 @@ def _select_tree(mask, new, old):
 # --------------------------------------------------------------------------
 # AD re-evaluation
 # --------------------------------------------------------------------------
-def specular_point_ad(scene, solution: SpecularSolution, a, b):
-    """Reflection point and shading normal, differentiable by the IFT.
-
-    One Newton step from the detached converged barycentrics with the
-    detached Jacobian, ``(u, v) = (u0, v0) - J^-1 C(u0, v0; theta)``, then
-    ``x = x(u, v; theta)``: value = the solution, derivative = the implicit
-    function theorem's ``-J^-1 dC/dtheta`` (see the module docstring).
-
-    Parameters
-    ----------
-    scene : RadarScene
-        The scene solved on; its ``vertex_positions`` / ``vertex_normals``
-        tensors may have gradients enabled.
-    solution : SpecularSolution
-        From :func:`solve_specular`.
-    a, b : mi.Point3f
-        The endpoints used there (may carry gradients).
-
-    Returns
-    -------
-    x : mi.Point3f
-        Reflection point [m]; zero on invalid lanes.
-    n : mi.Vector3f
-        Unit shading normal; zero on invalid lanes.
-    """
+def _ift_point(scene, solution, a, b):
+    """``(valid, ps, ns, u, v, a_s, b_s)``: the IFT barycentrics of
+    :func:`specular_point_ad` with the AD triangle and safe endpoints."""
     tables = _Tables(scene, detach=False)
     a = _as_point3f(a, "a")
     b = _as_point3f(b, "b")
@@ -543,11 +529,105 @@ def specular_point_ad(scene, solution: SpecularSolution, a, b):
         jac = tuple(tuple(dr.detach(e) for e in row) for row in jac)
     _, _, _, c, _, _, _ = _constraint(ps, ns, u0, v0, a_s, b_s, jacobian=False)
     du, dv, _ = _solve2(jac, c)
-    u = u0 - du
-    v = v0 - dv
+    return valid, ps, ns, u0 - du, v0 - dv, a_s, b_s
+
+
+def specular_point_ad(scene, solution: SpecularSolution, a, b):
+    """Reflection point and shading normal, differentiable by the IFT.
+
+    One Newton step from the detached converged barycentrics with the
+    detached Jacobian, ``(u, v) = (u0, v0) - J^-1 C(u0, v0; theta)``, then
+    ``x = x(u, v; theta)``: value = the solution, derivative = the implicit
+    function theorem's ``-J^-1 dC/dtheta`` (see the module docstring).
+
+    Parameters
+    ----------
+    scene : RadarScene
+        The scene solved on; its ``vertex_positions`` / ``vertex_normals``
+        tensors may have gradients enabled.
+    solution : SpecularSolution
+        From :func:`solve_specular`.
+    a, b : mi.Point3f
+        The endpoints used there (may carry gradients).
+
+    Returns
+    -------
+    x : mi.Point3f
+        Reflection point [m]; zero on invalid lanes.
+    n : mi.Vector3f
+        Unit shading normal; zero on invalid lanes.
+    """
+    valid, ps, ns, u, v, _, _ = _ift_point(scene, solution, a, b)
     p0, p1, p2 = ps
     n0, n1, n2 = ns
     x = p0 + (p1 - p0) * u + (p2 - p0) * v
     nrm = dr.normalize(n0 + (n1 - n0) * u + (n2 - n0) * v)
     return dr.select(valid, x, 0.0), dr.select(valid, nrm, 0.0)
 
+
+def stationary_phase(scene, solution: SpecularSolution, a, b, k_wave: float):
+    r"""Specular point and the stationary-phase area of its reflection (AD).
+
+    The physical-optics integral of ``exp(-j k phi(y))``, ``phi(y) = |y - a|
+    + |y - b|``, over the smooth surface that the interpolated normals
+    describe is, near a non-degenerate stationary point ``x`` (second-order
+    stationary phase; Born & Wolf, *Principles of Optics*, App. III),
+
+    .. math::
+
+        \int e^{-j k \phi} dA \approx e^{-j k \phi(x)}
+        \frac{2 \pi}{k \sqrt{|\det H|}} e^{-j \pi\, \mathrm{sig}(H) / 4},
+
+    ``H`` the Hessian of ``phi`` in orthonormal tangent coordinates and
+    ``sig`` its signature.  On the manifold walk's chart the tangential
+    gradient of ``phi`` is ``-|w_a + w_b| C`` (``C`` the half-vector
+    constraint, zero at ``x``), so ``H = -|w_a + w_b| J M^{-1}`` with ``J =
+    dC/d(u, v)`` and ``M`` the projection of the triangle's edges on the
+    shading frame ``(s, t)``; this is the generalised geometric term of
+    Zeltner et al. (2020, Sec. 4) written for a coherent field.
+
+    Parameters
+    ----------
+    scene : RadarScene
+        The scene solved on (tensors may carry gradients).
+    solution : SpecularSolution
+        From :func:`solve_specular`.
+    a, b : mi.Point3f
+        The endpoints (may carry gradients).
+    k_wave : float
+        Wavenumber ``2 pi / lambda`` [rad/m].
+
+    Returns
+    -------
+    x : mi.Point3f
+        Specular point [m] (IFT derivative, :func:`specular_point_ad`).
+    u, v : mi.Float
+        Its barycentrics (AD).
+    area_re, area_im : mi.Float
+        ``2 pi / (k sqrt|det H|) exp(-j pi sig(H) / 4)`` [m^2]; zero on
+        invalid lanes.
+    """
+    valid, ps, ns, u, v, a_s, b_s = _ift_point(scene, solution, a, b)
+    x, n, _, _, jac, la, lb = _constraint(ps, ns, u, v, a_s, b_s, jacobian=True)
+    lh = dr.norm((a_s - x) / la + (b_s - x) / lb)
+    e1, e2 = ps[1] - ps[0], ps[2] - ps[0]
+    s = dr.normalize(e1 - n * dr.dot(n, e1))
+    t = dr.cross(n, s)
+    m00, m01, m10, m11 = dr.dot(s, e1), dr.dot(s, e2), dr.dot(t, e1), dr.dot(t, e2)
+    det_m = m00 * m11 - m01 * m10
+    (j00, j01), (j10, j11) = jac
+    # H = -lh J M^-1 (M^-1 = [[m11, -m01], [-m10, m00]] / det_m)
+    h00 = -lh * (j00 * m11 - j01 * m10) / det_m
+    h01 = -lh * (-j00 * m01 + j01 * m00) / det_m
+    h10 = -lh * (j10 * m11 - j11 * m10) / det_m
+    h11 = -lh * (-j10 * m01 + j11 * m00) / det_m
+    det_h = h00 * h11 - h01 * h10
+    mag = 2.0 * np.pi / (k_wave * dr.sqrt(dr.maximum(dr.abs(det_h), 1e-30)))
+    # signature: +2 (minimum) -> -j, -2 (maximum) -> +j, 0 (saddle) -> 1
+    saddle = dr.detach(det_h) < 0
+    minimum = dr.detach(h00 + h11) > 0
+    area_re = dr.select(saddle, mag, 0.0)
+    area_im = dr.select(saddle, 0.0, dr.select(minimum, -mag, mag))
+    ok = valid & dr.isfinite(dr.detach(mag))
+    return (dr.select(valid, x, 0.0), u, v, dr.select(ok, area_re, 0.0),
+            dr.select(ok, area_im, 0.0))

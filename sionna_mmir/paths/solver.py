@@ -18,7 +18,10 @@ call runs the transport stages of :mod:`.transport` in order:
 2. connection -- the shadow ray to the Tx;
 3. coherent -- the physical-optics field of specular chains (the exit
    aperture on the last surface; under the facet quadrature clipped to
-   each node's lit footprint, :mod:`.transport.aperture`);
+   each node's lit footprint, :mod:`.transport.aperture`); with ``sms``
+   the specular points of chains on curved triangles instead
+   (:mod:`.transport.specular`), with ``fsd_coherent`` blocked connections
+   through the edges (:mod:`.transport.fsd_coherent`);
 4. scattered -- the BSDF speckle field and its reciprocal twin;
 5. continuation -- mirror or BSDF sample (or FSD diffraction), roulette,
    the next segment;
@@ -47,9 +50,10 @@ from .polarization import Field, transverse
 from .pose import Pose
 from .radar_paths import RadarPaths
 from .sampling import make_sampler
-from .transport import aperture, coherent, continuation, motion, scattered
+from .transport import aperture, coherent, continuation, motion, scattered, specular
 from .transport.connection import connect
 from .transport.diffraction import fsd_setup
+from .transport.fsd_coherent import boundary_edges, fsd_emission
 from .transport.state import Emission, PathState, SolverContext, zeros
 from .transport.surface import at_surface
 
@@ -165,6 +169,8 @@ class RadarPathSolver(PathSolver):
                                                        int(ctx.options.seed) + 0x9E3779B9))
         if ctx.options.diffraction:
             ctx.fsd = fsd_setup(geo, ctx.wavelength, ctx.options.fsd_width)
+        if ctx.options.fsd_coherent:
+            ctx.fsd_edges = boundary_edges(geo)
         it = geo.interaction(dr.full(mi.Bool, True, K), obj, face, u, v, tape)
         sub = ctx.sampler.first_triangle(it, cands, keep)
         st = _start_state(ctx, it, pdf, sub)
@@ -179,11 +185,17 @@ class RadarPathSolver(PathSolver):
         C_re, C_im = zeros(K), zeros(K)
         if opts.coherent:
             wr, wi, m = coherent.coherent_field(ctx, st, surf, conn, depth)
+            if opts.sms:            # chains on curved triangles: their specular points instead
+                m, sms = specular.sms_stage(ctx, st, m, depth)
+                out += [sms] if sms is not None else []
             if depth == 1:
                 C_re += dr.select(m, wr, 0.0)
                 C_im += dr.select(m, wi, 0.0)
             else:
                 out.append(coherent.coherent_emission(st, surf, wr, wi, m, conn.rate, depth))
+            fsd = fsd_emission(ctx, st, surf, conn, depth) if opts.fsd_coherent else None
+            if fsd is not None:     # blocked connections, through the edges
+                out.append(coherent.coherent_emission(st, surf, *fsd, conn.rate, depth))
         if opts.scattering:
             sc_re, sc_im = scattered.scattered_field(ctx, st, surf, conn)
             C_re += sc_re

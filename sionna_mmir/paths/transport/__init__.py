@@ -12,6 +12,8 @@
 ``scattered``       the BSDF-scattered speckle field and its reciprocal twin
 ``continuation``    mirror / BSDF choice, Russian roulette, the next segment
 ``diffraction``     free-space diffraction (FSD) as a continuation event
+``fsd_coherent``    coherent FSD: blocked connections through the edges
+``specular``        specular manifold sampling on curved triangles (SMS)
 ``motion``          delay rates from object and radar velocities (Doppler)
 ==================  ==========================================================
 

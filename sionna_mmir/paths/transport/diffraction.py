@@ -6,7 +6,9 @@ with probability ``beta`` -- the FSD diffracted fraction
 (:func:`sionna_mmir.bsdf.fsd.beta`) scaled by the Fresnel energy gate of the
 surface as edge opacity -- into a forward direction sampled from the FSD
 lobe, and continues as a power (incoherent) path.  The event is detached:
-diffraction redirects power but passes no gradient.
+diffraction redirects power but passes no gradient.  The coherent,
+differentiable counterpart (``SolverOptions.fsd_coherent``) is
+:mod:`.fsd_coherent`.
 """
 from __future__ import annotations
 

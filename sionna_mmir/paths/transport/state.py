@@ -54,6 +54,8 @@ class SolverContext:
         Radar velocity [m/s].
     fsd : dict or None
         Free-space diffraction state (edges, index, width).
+    fsd_edges : dict or None
+        Boundary edges of coherent FSD (:func:`.fsd_coherent.boundary_edges`).
     """
 
     options: object
@@ -73,6 +75,7 @@ class SolverContext:
     velocities: object = None
     v_radar: object = None
     fsd: object = None
+    fsd_edges: object = None
     n_est: int = 1
     rng: object = None
 
@@ -135,6 +138,9 @@ class PathState:
         :func:`.aperture.clip`.  ``None`` for random rays.
     lit : mi.Float or None
         Lit fraction of the node's cell for the current chain (``None``: 1).
+    curved1 : mi.Bool or None
+        The first interaction is on a curved triangle (specular manifold
+        sampling, :mod:`.specular`; ``None`` without it).
     """
 
     it: object
@@ -160,6 +166,7 @@ class PathState:
     aperture: object = None
     fan: tuple | None = None
     lit: object = None
+    curved1: object = None
 
     @property
     def width(self) -> int:
