@@ -219,10 +219,10 @@ def _backfit(model: EffectModel, newest, maxiter: int):
     residual usually finds the right basin (backfitting).  Returns the
     newest component (the same object unless a trial replaced the list).
     """
-    best = model.nll()
-    best = _restart(model, best, maxiter)
+    k = _position(model, newest)
+    best = _restart(model, model.nll(), maxiter)
     for i in range(len(model.components)):
-        if model.components[i] is newest or model.components[i].effect.kind == "basis":
+        if i == k or model.components[i].effect.kind == "basis":
             continue
         trial = model.copy()
         old = trial.components[i]
@@ -231,11 +231,15 @@ def _backfit(model: EffectModel, newest, maxiter: int):
         trial.fit(maxiter=2 * maxiter)
         nll = trial.nll()
         if nll < best - 1e-6:
-            k = model.components.index(newest)
             model.components, model.nuisance = trial.components, trial.nuisance
-            newest = model.components[k if k < i else k - 1]
+            k = k if k < i else k - 1        # the re-added effect moved to the end
             best = nll
-    return newest
+    return model.components[k]
+
+
+def _position(model: EffectModel, comp) -> int:
+    """Index of ``comp`` (by identity) in ``model.components``."""
+    return next(i for i, c in enumerate(model.components) if c is comp)
 
 
 class _Tiers:
@@ -293,7 +297,7 @@ def _adopt(model, eff, maxiter):
     work.fit(maxiter=2 * maxiter)
     comp = _backfit(work, comp, maxiter)
     if work is not model:                   # the values carry over; refit the floor only
-        k = work.components.index(comp)
+        k = _position(work, comp)
         model.components = [_copy_component(c) for c in work.components]
         model.nuisance.values["gain"] = np.array(work.nuisance.values["gain"], copy=True)
         model.fit(trainable=[], maxiter=maxiter)
