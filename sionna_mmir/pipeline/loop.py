@@ -153,9 +153,10 @@ def default_candidates(names=None) -> list:
     """Candidate effects of a loop: the library and the scene-side refinements
     (``names``: a list or comma-separated string; ``None``: all)."""
     from ..effects.library import LIBRARY
-    from ..effects.library.scene_mismatch import ObjectDelay, ObjectPattern
+    from ..effects.library.scene_mismatch import ObjectDelay, ObjectPattern, ObjectShift
 
-    extra = {"object_delay": ObjectDelay, "object_pattern": ObjectPattern}
+    extra = {"object_delay": ObjectDelay, "object_shift": ObjectShift,
+             "object_pattern": ObjectPattern}
     known = {**LIBRARY, **extra}
     if names is None:
         return [cls() for cls in known.values()]

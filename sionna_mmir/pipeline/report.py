@@ -54,7 +54,7 @@ def _verdict(adoption, side: str) -> str:
 
 
 #: names of scene-side candidates (stage 0)
-_SCENE = {"object_gain", "object_delay", "pose_offset", "object_pattern", "missing_scatterer",
+_SCENE = {"object_gain", "object_delay", "object_shift", "pose_offset", "object_pattern", "missing_scatterer",
           "moving_scatterer", "multipath_ghost"}
 
 
