@@ -1,0 +1,358 @@
+"""Reference twin of :class:`~sionna_mmir.paths.RadarPathSolver`: the estimator written out.
+
+:func:`solve_basic` evaluates the solver's forward model literally, one
+candidate ray at a time in plain NumPy (float64), with Mitsuba ray casts for
+hits and shadow rays.  It is slow and simple on purpose; the tests
+(``tests/test_paths_solver_basic.py``) compare the optimised solver against
+it, as :func:`~sionna_mmir.fmcw.synthesize_adc_basic` is the twin of the ADC
+synthesis.
+
+Subset covered (the solver called with ``sampling="random"``,
+``coherent=True``, ``scattering=False``, ``diffraction=False``,
+``min_rel_power=0``, ``max_depth`` 1 or 2, static scene and radar):
+
+* candidate rays: the same ``N`` directions and densities as the solver, drawn
+  from :class:`~sionna_mmir.paths.sampling.RandomCone` with the same seed
+  (the twin re-implements the estimator, not the random numbers);
+* depth 1: the coherent physical-optics (Kirchhoff) field of every hit ``x_1``
+  connected to the transmitter by a shadow ray,
+  ``a_po = j / (4 pi) (e_t . E_refl) (cos_in + cos_t) / 2 sqrt(eta_b) F / (N p_A)``,
+  ``p_A = pdf |k . n_g| / L_0^2``, ``eta_b = exp(-(k sigma_h (cos_in +
+  cos_t))^2)``, ``E_refl`` the receiver's polarisation Jones-reflected with the
+  ITU-R P.2040 slab coefficients of
+  :func:`~sionna_mmir.radio_materials.fresnel.slab_coefficients` in the s/p
+  basis of :mod:`~sionna_mmir.paths.polarization`;
+* depth 2: every hit continues along the mirror direction of its shading
+  normal (field times ``sqrt(eta)``, ``eta = exp(-(2 k sigma_h cos_in)^2)``);
+  the chain's exit aperture on ``x_2`` radiates with the Rx leg from the
+  receiver's image ``x* = M_1 x_2`` (``M_1`` the mirror of the first plane)
+  and the area density ``pdf |k_2 . n_g| / (L_0 + |x_2 - x_1|)^2``;
+* ``F``: the exact triangle average ``(1 / A) int exp(-j q . (y - x)) dA``
+  with ``q = k (M_1^T u_rx + u_tx)``, evaluated as the second divided
+  difference of ``exp`` through a 3 x 3 matrix exponential (Opitz's formula)
+  -- an independent evaluation of what
+  :mod:`~sionna_mmir.paths.triangle_po` writes as series -- where the
+  triangle is small against the Fresnel zone (``k D^2 / R < 1``), else 1;
+* per-pair legs: ``a[i, j, p] = conj(C_p) sqrt(G_t) sqrt(G_r) / (|X_p - tx_i|
+  |X*_p - rx_j|)``, ``tau[i, j, p] = (|X_p - tx_i| + |X*_p - rx_j|) / c``
+  (``X*`` = ``X`` at depth 1), the FMCW beat convention of
+  :mod:`~sionna_mmir.paths.assemble`.
+
+Where it deliberately differs: float64 throughout (the solver rebuilds
+points from float32 barycentrics); the hit point is re-intersected in float64
+with the triangle Mitsuba reports; no pruning, no roulette (with
+``max_depth <= 2`` the solver's roulette, from ``rr_depth = 2`` on, never
+acts), no BSDF-scattered term, no diffraction, no facet quadrature or lit
+apertures, no motion and no automatic differentiation.
+
+References: Knott, Shaeffer & Tuley, *Radar Cross Section* (physical optics);
+ITU-R P.2040-3 (slab coefficients); Opitz, *Z. Angew. Math. Mech.* 44 (1964)
+(divided differences as a matrix function).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from scipy.linalg import expm
+
+from ..radar.config import rotation_matrix
+from ..radio_materials.fresnel import SPEED_OF_LIGHT, slab_coefficients
+from ..utils.backend import init_backend
+from .options import SolverOptions
+from .pose import Pose
+from .sampling import RandomCone
+
+init_backend()
+
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
+
+RAY_EPSILON = 1e-4       # the solver's offset of secondary rays along the normal [m]
+
+
+class BasicPaths(NamedTuple):
+    """Paths of :func:`solve_basic`.
+
+    Parameters
+    ----------
+    a : np.ndarray
+        complex128 ``[T, R, P]`` amplitudes (layout of :meth:`RadarPaths.numpy`).
+    tau : np.ndarray
+        float64 ``[T, R, P]`` per-pair delays [s].
+    depth : np.ndarray
+        int ``[P]`` interactions of each path.
+    points : np.ndarray
+        float64 ``[P, 3]`` the Tx-side interaction point of each path [m].
+    """
+
+    a: np.ndarray
+    tau: np.ndarray
+    depth: np.ndarray
+    points: np.ndarray
+
+
+class _Mesh:
+    """The scene's triangles, normals and materials as float64 NumPy arrays."""
+
+    def __init__(self, scene):
+        names = list(scene.mesh_objects)
+        objs = [scene.mesh_objects[n] for n in names]
+        self.V = np.concatenate([_np(o.vertex_positions).reshape(-1, 3) for o in objs])
+        self.N = np.concatenate([_np(o.vertex_normals).reshape(-1, 3) for o in objs])
+        self.M = np.concatenate([_np(o.vertex_materials).reshape(-1, 6) for o in objs])
+        v_off = np.cumsum([0] + [len(_np(o.vertex_positions).reshape(-1, 3)) for o in objs])
+        self.F = np.concatenate([np.asarray(o.faces, np.int64) + v_off[i]
+                                 for i, o in enumerate(objs)])
+        f_off = np.cumsum([0] + [len(o.faces) for o in objs])
+        # Mitsuba shape id -> first global face of that object
+        ids = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(scene.mesh(n)))[0]) for n in names]
+        self.face_offset = {sid: int(f_off[i]) for i, sid in enumerate(ids)}
+        self.mi_scene = scene.mi_scene
+
+    def cast(self, origins, dirs):
+        """Global face index of the first hit of each ray (``-1``: miss)."""
+        ray = mi.Ray3f(_point(origins), _vector(dirs))
+        pi = self.mi_scene.ray_intersect_preliminary(ray, coherent=False)
+        valid = np.asarray(pi.is_valid(), bool)
+        sid = np.asarray(dr.reinterpret_array(mi.UInt32, pi.shape), np.int64)
+        prim = np.asarray(pi.prim_index, np.int64)
+        return np.array([self.face_offset[s] + p if v and s in self.face_offset else -1
+                         for v, s, p in zip(valid, sid, prim)], dtype=np.int64)
+
+    def visible(self, a, b) -> bool:
+        """Segment ``a -> b`` unobstructed, with the solver's 1 mm margins."""
+        d = b - a
+        dist = float(np.linalg.norm(d))
+        ray = mi.Ray3f(_point(a[None] + d[None] / dist * 1e-3), _vector(d[None] / dist))
+        ray.maxt = max(dist - 2e-3, 0.0)
+        return not bool(np.asarray(self.mi_scene.ray_test(ray))[0])
+
+    def surface(self, face, origin, direction):
+        """Hit point, barycentrics-interpolated shading normal and materials,
+        geometric normal and corners of the ray's intersection with ``face``."""
+        P = self.V[self.F[face]]
+        e1, e2 = P[1] - P[0], P[2] - P[0]
+        ng = np.cross(e1, e2)
+        t = np.dot(P[0] - origin, ng) / np.dot(direction, ng)
+        x = origin + t * direction
+        # barycentrics of x (Cramer's rule in the triangle's plane)
+        d = x - P[0]
+        g = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
+        u, v = np.linalg.solve(g, [d @ e1, d @ e2])
+        w = np.array([1.0 - u - v, u, v])
+        idx = self.F[face]
+        n = w @ self.N[idx]
+        return x, n / np.linalg.norm(n), ng / np.linalg.norm(ng), w @ self.M[idx], P
+
+
+def solve_basic(scene, radar=None, options: SolverOptions | dict | None = None,
+                **overrides) -> BasicPaths:
+    """Coherent depth-1 and depth-2 radar paths by the literal estimator.
+
+    Parameters
+    ----------
+    scene : RadarScene
+        The scene (:func:`~sionna_mmir.scene.load_scene`).
+    radar : RadarConfig, optional
+        Default ``scene.radar``; the pose is the scene's ``position`` /
+        ``orientation``.
+    options : SolverOptions or dict, optional
+        With keyword ``overrides``; must lie in the subset of the module
+        docstring (``ValueError`` otherwise).
+
+    Returns
+    -------
+    BasicPaths
+        Depth-1 paths first, then depth-2 paths, each in candidate order
+        (the order of the solver's output).
+    """
+    opts = SolverOptions.resolve(options, **overrides)
+    _check_subset(opts)
+    radar = radar if radar is not None else scene.radar
+    mesh = _Mesh(scene)
+    pos = _np(scene.position).reshape(3)
+    Rm = rotation_matrix(_np(scene.orientation).reshape(3))
+    tx = pos + radar.tx_positions @ Rm.T
+    rx = pos + radar.rx_positions @ Rm.T
+    c = pos + np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0) @ Rm.T
+    freq = float(_np(scene.frequency)[0]) if dr.width(scene.frequency) else \
+        SPEED_OF_LIGHT / radar.wavelength
+    k = 2.0 * math.pi * freq / SPEED_OF_LIGHT
+    ptx, prx = _pattern(opts.tx_pattern), _pattern(opts.rx_pattern)
+    dirs, pdf = _candidates(scene, opts, c)
+    faces = mesh.cast(np.repeat(c[None], len(dirs), 0), dirs)
+    paths = {1: [], 2: []}
+    for i in np.flatnonzero(faces >= 0):
+        _follow(mesh, opts, c, dirs[i], faces[i], pdf[i], len(dirs), k, freq, Rm, ptx, prx, paths)
+    emitted = paths[1] + paths[2]
+    depth = np.array([1] * len(paths[1]) + [2] * len(paths[2]), dtype=np.int64)
+    a, tau, pts = _legs(emitted, tx, rx, Rm, ptx, prx)
+    return BasicPaths(a, tau, depth, pts)
+
+
+def _follow(mesh, opts, c, d0, face, pdf, n_est, k, freq, Rm, ptx, prx, paths) -> None:
+    """One candidate ray: the depth-1 path, then the mirror chain's depth-2 path."""
+    x1, n_sh, ng, mat, tri = mesh.surface(face, c, d0)
+    L0 = np.linalg.norm(x1 - c)
+    k_in = (x1 - c) / L0
+    e_r = _transverse(Rm @ prx.polarization_np(Rm.T @ k_in).reshape(3), k_in).astype(complex)
+    p_area = pdf * abs(k_in @ ng) / L0 ** 2
+    s1 = _local(k_in, n_sh, ng, mat, freq)
+    mirror_1 = np.eye(3)
+    C = _coherent(mesh, opts, c, x1, x1, mirror_1, s1, e_r, p_area, n_est, k, Rm, ptx, tri)
+    if C is not None:
+        paths[1].append((C, x1, x1))
+    if opts.max_depth < 2:
+        return
+    E1 = _reflect(e_r, k_in, s1) * math.sqrt(math.exp(-(2 * k * mat[2] * s1["cos_in"]) ** 2))
+    k_out = k_in - 2.0 * (k_in @ s1["n"]) * s1["n"]
+    side = 1.0 if k_out @ s1["ng"] > 0 else -1.0
+    o2 = x1 + s1["ng"] * RAY_EPSILON * side
+    face2 = mesh.cast(o2[None], k_out[None])[0]
+    if face2 < 0:
+        return
+    x2, n2, ng2, mat2, tri2 = mesh.surface(face2, o2, k_out)
+    seg = np.linalg.norm(x2 - x1)
+    k2 = (x2 - x1) / seg
+    p_area2 = pdf * abs(k2 @ ng2) / (L0 + seg) ** 2
+    # the receiver's image through the first plane: x* = M_1 x_2
+    n1 = s1["n"]
+    mirror_1 = np.eye(3) - 2.0 * np.outer(n1, n1)
+    x_star = mirror_1 @ x2 + 2.0 * (n1 @ x1) * n1
+    s2 = _local(k2, n2, ng2, mat2, freq)
+    C = _coherent(mesh, opts, c, x2, x_star, mirror_1, s2, E1, p_area2, n_est, k, Rm, ptx, tri2)
+    if C is not None:
+        paths[2].append((C, x2, x_star))
+
+
+def _local(k_in, n_sh, ng, mat, freq) -> dict:
+    """Normals turned to face the ray, incidence cosine and slab coefficients."""
+    n = -n_sh if k_in @ n_sh > 0 else n_sh
+    cos_in = max(-(k_in @ n), 0.0)
+    ng = ng if k_in @ ng < 0 else -ng
+    eps = mat[0] - 1j * mat[1]
+    sc = slab_coefficients(cos_in, eps, mat[5], freq, backend="numpy")
+    return {"k_in": k_in, "n": n, "ng": ng, "cos_in": cos_in, "sigma_h": mat[2],
+            "r_s": complex(sc.r_s), "r_p": complex(sc.r_p)}
+
+
+def _coherent(mesh, opts, c, x, x_star, mirror_1, s, E, p_area, n_est, k, Rm, ptx, tri):
+    """Physical-optics field of the chain ending at ``x`` towards the Tx, or
+    ``None`` where the connection fails."""
+    to_c = c - x
+    k_t = to_c / np.linalg.norm(to_c)
+    cos_t = s["n"] @ k_t
+    if not (cos_t > 0 and s["ng"] @ k_t > 0 and s["cos_in"] > 0
+            and mesh.visible(x + s["ng"] * RAY_EPSILON, c)):
+        return None
+    e_t = _transverse(Rm @ ptx.polarization_np(Rm.T @ -k_t).reshape(3), k_t)
+    val = _reflect(E, s["k_in"], s) @ e_t
+    eta_b = math.exp(-(k * s["sigma_h"] * (s["cos_in"] + cos_t)) ** 2)
+    scale = 0.5 * (s["cos_in"] + cos_t) * math.sqrt(eta_b) / (4.0 * math.pi * n_est)
+    F = 1.0
+    if opts.triangle_average:
+        D2 = max(np.sum((tri[1] - tri[0]) ** 2), np.sum((tri[2] - tri[0]) ** 2),
+                 np.sum((tri[2] - tri[1]) ** 2))
+        near = min(np.linalg.norm(x_star - c), np.linalg.norm(x - c))
+        if k * D2 / max(near, 1e-3) < 1.0:
+            u_rx = (x_star - c) / np.linalg.norm(x_star - c)
+            u_tx = (x - c) / np.linalg.norm(x - c)
+            F = _triangle_average(k * (mirror_1.T @ u_rx + u_tx), tri, x)
+    return 1j * val * scale * F / p_area
+
+
+def _triangle_average(q, tri, x) -> complex:
+    """``(1 / A) int_T exp(-j q . (y - x)) dA(y)`` = ``2 exp[z_0, z_1, z_2]``
+    (``z_i = -j q . (P_i - x)``; the divided difference is the corner entry of
+    the exponential of the bidiagonal matrix of the ``z_i``)."""
+    z = -1j * np.array([q @ (p - x) for p in tri])
+    A = np.diag(z) + np.diag([1.0, 1.0], 1)
+    return complex(2.0 * expm(A)[0, 2])
+
+
+def _reflect(E, k_in, s):
+    """Jones reflection ``r_s (E . s) s + r_p (E . p_in) p_out``."""
+    n = s["n"]
+    sv = np.cross(k_in, n)
+    if np.linalg.norm(sv) > 1e-6:
+        sv = sv / np.linalg.norm(sv)
+    else:   # normal incidence: any s perpendicular to k_in (the solver's helper axis)
+        helper = np.array([0.0, 0.0, 1.0]) if abs(k_in[2]) < 0.9 else np.array([1.0, 0, 0])
+        sv = np.cross(k_in, helper)
+        sv = sv / np.linalg.norm(sv)
+    p_in = np.cross(sv, k_in)
+    p_out = np.cross(sv, k_in - 2.0 * (k_in @ n) * n)
+    return s["r_s"] * (E @ sv) * sv + s["r_p"] * (E @ p_in) * p_out
+
+
+def _legs(emitted, tx, rx, Rm, ptx, prx):
+    """``(a, tau, points)`` of the emitted paths, one Tx-Rx pair at a time."""
+    T, R, P = len(tx), len(rx), len(emitted)
+    a = np.zeros((T, R, P), complex)
+    tau = np.zeros((T, R, P))
+    for p, (C, X, X_rx) in enumerate(emitted):
+        for i in range(T):
+            d_t = np.linalg.norm(X - tx[i])
+            g_t = math.sqrt(float(ptx.gain_np(Rm.T @ ((X - tx[i]) / d_t), _element(ptx, i))))
+            for j in range(R):
+                d_r = np.linalg.norm(X_rx - rx[j])
+                g_r = math.sqrt(float(prx.gain_np(Rm.T @ ((X_rx - rx[j]) / d_r),
+                                                  _element(prx, j))))
+                a[i, j, p] = np.conj(C) * g_t / d_t * g_r / d_r
+                tau[i, j, p] = (d_t + d_r) / SPEED_OF_LIGHT
+    pts = np.array([e[1] for e in emitted]).reshape(-1, 3)
+    return a, tau, pts
+
+
+def _candidates(scene, opts, c):
+    """The solver's candidate directions and densities (same sampler, same seed)."""
+    pose = Pose.from_tensors(scene.position, scene.orientation)
+    centre = mi.Point3f(*(float(v) for v in c))
+    cands = RandomCone(opts).candidates(None, pose, centre, None)
+    dirs = np.stack([np.asarray(cands.direction[i], np.float64) for i in range(3)], axis=1)
+    return dirs, np.asarray(cands.pdf, np.float64)
+
+
+def _check_subset(opts) -> None:
+    bad = {"sampling": opts.sampling != "random", "coherent": not opts.coherent,
+           "scattering": bool(opts.scattering), "diffraction": bool(opts.diffraction),
+           "min_rel_power": opts.min_rel_power > 0, "max_depth": opts.max_depth > 2,
+           "velocities": opts.velocities is not None,
+           "radar_velocity": opts.radar_velocity is not None}
+    named = [k for k, v in bad.items() if v]
+    if named:
+        raise ValueError(f"solve_basic covers coherent random-cone paths of depth <= 2 only; "
+                         f"outside that subset: {named}")
+
+
+def _pattern(spec):
+    from ..radio_devices import make_pattern
+
+    return make_pattern(spec)
+
+
+def _element(pattern, index):
+    """The element index a pattern with per-element parameters needs, else ``None``."""
+    return index if pattern.n_elements > 1 else None
+
+
+def _transverse(v, k):
+    t = v - (v @ k) * k
+    return t / np.linalg.norm(t)
+
+
+def _np(t) -> np.ndarray:
+    return np.asarray(dr.detach(t).array if isinstance(t, mi.TensorXf) else dr.detach(t),
+                      dtype=np.float64)
+
+
+def _point(a):
+    a = np.asarray(a, np.float32).reshape(-1, 3)
+    return mi.Point3f(mi.Float(a[:, 0]), mi.Float(a[:, 1]), mi.Float(a[:, 2]))
+
+
+def _vector(a):
+    a = np.asarray(a, np.float32).reshape(-1, 3)
+    return mi.Vector3f(mi.Float(a[:, 0]), mi.Float(a[:, 1]), mi.Float(a[:, 2]))
