@@ -121,13 +121,14 @@ class _Mesh:
         return np.array([self.face_offset[s] + p if v and s in self.face_offset else -1
                          for v, s, p in zip(valid, sid, prim)], dtype=np.int64)
 
-    def visible(self, a, b) -> bool:
-        """Segment ``a -> b`` unobstructed, with the solver's 1 mm margins."""
-        d = b - a
-        dist = float(np.linalg.norm(d))
-        ray = mi.Ray3f(_point(a[None] + d[None] / dist * 1e-3), _vector(d[None] / dist))
-        ray.maxt = max(dist - 2e-3, 0.0)
-        return not bool(np.asarray(self.mi_scene.ray_test(ray))[0])
+    def visible(self, a, b) -> np.ndarray:
+        """Segments ``a [n, 3] -> b`` unobstructed, with the solver's 1 mm margins."""
+        d = b[None, :] - a
+        dist = np.linalg.norm(d, axis=1)
+        u = d / np.maximum(dist, 1e-12)[:, None]
+        ray = mi.Ray3f(_point(a + u * 1e-3), _vector(u))
+        ray.maxt = mi.Float(np.maximum(dist - 2e-3, 0.0).astype(np.float32))
+        return ~np.asarray(self.mi_scene.ray_test(ray), bool)
 
     def surface(self, face, origin, direction):
         """Hit point, barycentrics-interpolated shading normal and materials,
@@ -179,52 +180,80 @@ def solve_basic(scene, radar=None, options: SolverOptions | dict | None = None,
     c = pos + np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0) @ Rm.T
     freq = float(_np(scene.frequency)[0]) if dr.width(scene.frequency) else \
         SPEED_OF_LIGHT / radar.wavelength
-    k = 2.0 * math.pi * freq / SPEED_OF_LIGHT
-    ptx, prx = _pattern(opts.tx_pattern), _pattern(opts.rx_pattern)
+    ctx = {"mesh": mesh, "opts": opts, "c": c, "freq": freq, "Rm": Rm,
+           "k": 2.0 * math.pi * freq / SPEED_OF_LIGHT, "ptx": _pattern(opts.tx_pattern),
+           "prx": _pattern(opts.rx_pattern)}
     dirs, pdf = _candidates(scene, opts, c)
+    ctx["n_est"] = len(dirs)
     faces = mesh.cast(np.repeat(c[None], len(dirs), 0), dirs)
-    paths = {1: [], 2: []}
-    for i in np.flatnonzero(faces >= 0):
-        _follow(mesh, opts, c, dirs[i], faces[i], pdf[i], len(dirs), k, freq, Rm, ptx, prx, paths)
-    emitted = paths[1] + paths[2]
-    depth = np.array([1] * len(paths[1]) + [2] * len(paths[2]), dtype=np.int64)
-    a, tau, pts = _legs(emitted, tx, rx, Rm, ptx, prx)
-    return BasicPaths(a, tau, depth, pts)
+    hits = [_first_hit(ctx, dirs[i], faces[i], pdf[i]) for i in np.flatnonzero(faces >= 0)]
+    emitted = _emit(ctx, hits)
+    depth = [1] * len(emitted)
+    if opts.max_depth >= 2:
+        chains = _continue(ctx, hits)
+        second = _emit(ctx, chains)
+        emitted += second
+        depth += [2] * len(second)
+    a, tau, pts = _legs(emitted, tx, rx, Rm, ctx["ptx"], ctx["prx"])
+    return BasicPaths(a, tau, np.array(depth, dtype=np.int64), pts)
 
 
-def _follow(mesh, opts, c, d0, face, pdf, n_est, k, freq, Rm, ptx, prx, paths) -> None:
-    """One candidate ray: the depth-1 path, then the mirror chain's depth-2 path."""
-    x1, n_sh, ng, mat, tri = mesh.surface(face, c, d0)
+def _first_hit(ctx, d0, face, pdf) -> dict:
+    """The state of a candidate ray at its first interaction ``x_1``: the
+    receiver's polarisation, the area density and the local surface."""
+    c, Rm = ctx["c"], ctx["Rm"]
+    x1, n_sh, ng, mat, tri = ctx["mesh"].surface(face, c, d0)
     L0 = np.linalg.norm(x1 - c)
     k_in = (x1 - c) / L0
-    e_r = _transverse(Rm @ prx.polarization_np(Rm.T @ k_in).reshape(3), k_in).astype(complex)
-    p_area = pdf * abs(k_in @ ng) / L0 ** 2
-    s1 = _local(k_in, n_sh, ng, mat, freq)
-    mirror_1 = np.eye(3)
-    C = _coherent(mesh, opts, c, x1, x1, mirror_1, s1, e_r, p_area, n_est, k, Rm, ptx, tri)
-    if C is not None:
-        paths[1].append((C, x1, x1))
-    if opts.max_depth < 2:
-        return
-    E1 = _reflect(e_r, k_in, s1) * math.sqrt(math.exp(-(2 * k * mat[2] * s1["cos_in"]) ** 2))
-    k_out = k_in - 2.0 * (k_in @ s1["n"]) * s1["n"]
-    side = 1.0 if k_out @ s1["ng"] > 0 else -1.0
-    o2 = x1 + s1["ng"] * RAY_EPSILON * side
-    face2 = mesh.cast(o2[None], k_out[None])[0]
-    if face2 < 0:
-        return
-    x2, n2, ng2, mat2, tri2 = mesh.surface(face2, o2, k_out)
-    seg = np.linalg.norm(x2 - x1)
-    k2 = (x2 - x1) / seg
-    p_area2 = pdf * abs(k2 @ ng2) / (L0 + seg) ** 2
-    # the receiver's image through the first plane: x* = M_1 x_2
-    n1 = s1["n"]
-    mirror_1 = np.eye(3) - 2.0 * np.outer(n1, n1)
-    x_star = mirror_1 @ x2 + 2.0 * (n1 @ x1) * n1
-    s2 = _local(k2, n2, ng2, mat2, freq)
-    C = _coherent(mesh, opts, c, x2, x_star, mirror_1, s2, E1, p_area2, n_est, k, Rm, ptx, tri2)
-    if C is not None:
-        paths[2].append((C, x2, x_star))
+    e_r = _transverse(Rm @ ctx["prx"].polarization_np(Rm.T @ k_in).reshape(3), k_in)
+    return {"x": x1, "x_star": x1, "mirror": np.eye(3), "E": e_r.astype(complex),
+            "p_area": pdf * abs(k_in @ ng) / L0 ** 2, "pdf": pdf, "L0": L0, "tri": tri,
+            "mat": mat, "s": _local(k_in, n_sh, ng, mat, ctx["freq"])}
+
+
+def _continue(ctx, hits) -> list:
+    """Each chain continued along the mirror direction of its shading normal
+    to ``x_2`` (the Rx leg then leaves from the receiver's image)."""
+    mesh, k = ctx["mesh"], ctx["k"]
+    starts = []
+    for h in hits:
+        s = h["s"]
+        k_out = s["k_in"] - 2.0 * (s["k_in"] @ s["n"]) * s["n"]
+        side = 1.0 if k_out @ s["ng"] > 0 else -1.0
+        starts.append((h["x"] + s["ng"] * RAY_EPSILON * side, k_out))
+    faces = mesh.cast(np.array([o for o, _ in starts]).reshape(-1, 3),
+                      np.array([d for _, d in starts]).reshape(-1, 3))
+    chains = []
+    for h, (o2, k_out), face in zip(hits, starts, faces):
+        if face < 0:
+            continue
+        x1, s1 = h["x"], h["s"]
+        x2, n2, ng2, mat2, tri2 = mesh.surface(face, o2, k_out)
+        seg = np.linalg.norm(x2 - x1)
+        k2 = (x2 - x1) / seg
+        eta = math.exp(-(2.0 * k * s1["sigma_h"] * s1["cos_in"]) ** 2)
+        n1 = s1["n"]
+        mirror = np.eye(3) - 2.0 * np.outer(n1, n1)        # M_1 about the plane of x_1
+        chains.append({"x": x2, "x_star": mirror @ x2 + 2.0 * (n1 @ x1) * n1,
+                       "mirror": mirror, "E": _reflect(h["E"], s1) * math.sqrt(eta),
+                       "p_area": h["pdf"] * abs(k2 @ ng2) / (h["L0"] + seg) ** 2,
+                       "tri": tri2, "s": _local(k2, n2, ng2, mat2, ctx["freq"])})
+    return chains
+
+
+def _emit(ctx, states) -> list:
+    """``(C, X, X*)`` of the chains ending at these interactions whose
+    connection to the transmitter holds (shadow rays cast together)."""
+    c = ctx["c"]
+    ok = []
+    for st in states:
+        s = st["s"]
+        k_t = (c - st["x"]) / np.linalg.norm(c - st["x"])
+        ok.append(s["n"] @ k_t > 0 and s["ng"] @ k_t > 0 and s["cos_in"] > 0)
+    shadow = np.array([st["x"] + st["s"]["ng"] * RAY_EPSILON for st in states]).reshape(-1, 3)
+    visible = ctx["mesh"].visible(shadow, c)
+    return [(_coherent(ctx, st), st["x"], st["x_star"])
+            for st, o, v in zip(states, ok, visible) if o and v]
 
 
 def _local(k_in, n_sh, ng, mat, freq) -> dict:
@@ -238,29 +267,26 @@ def _local(k_in, n_sh, ng, mat, freq) -> dict:
             "r_s": complex(sc.r_s), "r_p": complex(sc.r_p)}
 
 
-def _coherent(mesh, opts, c, x, x_star, mirror_1, s, E, p_area, n_est, k, Rm, ptx, tri):
-    """Physical-optics field of the chain ending at ``x`` towards the Tx, or
-    ``None`` where the connection fails."""
-    to_c = c - x
-    k_t = to_c / np.linalg.norm(to_c)
+def _coherent(ctx, st) -> complex:
+    """Physical-optics field towards the Tx of the chain ending at ``st["x"]``."""
+    c, k, Rm, s, x, x_star = ctx["c"], ctx["k"], ctx["Rm"], st["s"], st["x"], st["x_star"]
+    k_t = (c - x) / np.linalg.norm(c - x)
     cos_t = s["n"] @ k_t
-    if not (cos_t > 0 and s["ng"] @ k_t > 0 and s["cos_in"] > 0
-            and mesh.visible(x + s["ng"] * RAY_EPSILON, c)):
-        return None
-    e_t = _transverse(Rm @ ptx.polarization_np(Rm.T @ -k_t).reshape(3), k_t)
-    val = _reflect(E, s["k_in"], s) @ e_t
+    e_t = _transverse(Rm @ ctx["ptx"].polarization_np(Rm.T @ -k_t).reshape(3), k_t)
+    val = _reflect(st["E"], s) @ e_t
     eta_b = math.exp(-(k * s["sigma_h"] * (s["cos_in"] + cos_t)) ** 2)
-    scale = 0.5 * (s["cos_in"] + cos_t) * math.sqrt(eta_b) / (4.0 * math.pi * n_est)
+    scale = 0.5 * (s["cos_in"] + cos_t) * math.sqrt(eta_b) / (4.0 * math.pi * ctx["n_est"])
     F = 1.0
-    if opts.triangle_average:
+    tri = st["tri"]
+    if ctx["opts"].triangle_average:
         D2 = max(np.sum((tri[1] - tri[0]) ** 2), np.sum((tri[2] - tri[0]) ** 2),
                  np.sum((tri[2] - tri[1]) ** 2))
         near = min(np.linalg.norm(x_star - c), np.linalg.norm(x - c))
-        if k * D2 / max(near, 1e-3) < 1.0:
+        if k * D2 / max(near, 1e-3) < 1.0:     # phase linear across the triangle
             u_rx = (x_star - c) / np.linalg.norm(x_star - c)
             u_tx = (x - c) / np.linalg.norm(x - c)
-            F = _triangle_average(k * (mirror_1.T @ u_rx + u_tx), tri, x)
-    return 1j * val * scale * F / p_area
+            F = _triangle_average(k * (st["mirror"].T @ u_rx + u_tx), tri, x)
+    return 1j * val * scale * F / st["p_area"]
 
 
 def _triangle_average(q, tri, x) -> complex:
@@ -272,9 +298,9 @@ def _triangle_average(q, tri, x) -> complex:
     return complex(2.0 * expm(A)[0, 2])
 
 
-def _reflect(E, k_in, s):
-    """Jones reflection ``r_s (E . s) s + r_p (E . p_in) p_out``."""
-    n = s["n"]
+def _reflect(E, s):
+    """Jones reflection ``r_s (E . s) s + r_p (E . p_in) p_out`` at the surface ``s``."""
+    k_in, n = s["k_in"], s["n"]
     sv = np.cross(k_in, n)
     if np.linalg.norm(sv) > 1e-6:
         sv = sv / np.linalg.norm(sv)
