@@ -13,12 +13,14 @@ Tolerances, from the solver's float32 arithmetic (the twin is float64):
   (2.4e-7 m each) per coordinate, so legs agree to ~1e-6 m = 3e-15 s;
   ``DELAY_TOL = 2e-14 s`` (6 um, 0.01 rad of carrier phase at 77 GHz)
   leaves a factor of ~7.
-* amplitudes: the triangle average's phases ``q . (P_i - x)`` reach tens of
-  radians and carry float32 rounding of ~1e-5 rad; per path
-  ``|a - a_twin| <= AMP_TOL max |a|`` with ``AMP_TOL = 5e-4``.
+* amplitudes: the triangle average's phase ``q . (P_i - x)`` (``|q| = 2 k``
+  = 3200 rad/m) takes the same float32 rounding of the points, ~5e-7 m, i.e.
+  ~1.5e-3 rad (a phase error; the magnitudes agree to 1e-6); per path
+  ``|a - a_twin| <= AMP_TOL max |a|`` with ``AMP_TOL = 5e-3`` (measured
+  <= 1.2e-3 with the triangle average, 1e-6 without).
 * ADC: the coherent sum cancels (an oblique plate returns ~1/30 of the sum of
   its path magnitudes), which amplifies the per-path rounding by the same
-  factor; ``ADC_TOL_DB = -50`` (relative error energy), measured -62 to -70 dB.
+  factor; ``ADC_TOL_DB = -50`` (relative error energy), measured -57 to -70 dB.
 """
 from __future__ import annotations
 
@@ -39,12 +41,12 @@ from sionna_mmir.paths.solver_basic import solve_basic  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
 DELAY_TOL = 2e-14
-AMP_TOL = 5e-4
+AMP_TOL = 5e-3
 ADC_TOL_DB = -50.0
 OPTIONS = dict(num_rays=1000, scattering=False, seed=3)
 
 
-def _plate(corners, subdiv=2):
+def _plate(corners, subdiv=4):
     m = trimesh.Trimesh(np.array(corners, float), [[0, 1, 2], [0, 2, 3]], process=False)
     for _ in range(subdiv):
         m = m.subdivide()
@@ -52,7 +54,8 @@ def _plate(corners, subdiv=2):
 
 
 def _dihedral(R=2.0, a=0.3, z=0.0):
-    """A 90 deg dihedral of ``a`` x ``a`` plates, crease vertical, opening to the radar."""
+    """A 90 deg dihedral of ``a`` x ``a`` plates, crease vertical, opening to the radar
+    (2.7 cm triangles: ``k D^2 / R < 1``, the triangle average applies)."""
     s2 = np.sqrt(0.5)
     O = np.array([R, 0.0, z - a / 2])
     u1, u2, w = np.array([-s2, s2, 0]) * a, np.array([-s2, -s2, 0]) * a, np.array([0, 0, a])
@@ -84,11 +87,13 @@ def _check(d_tau, d_amp, adc_db):
     assert adc_db < ADC_TOL_DB, adc_db
 
 
-@pytest.mark.parametrize("yaw", [0.0, 25.0, 50.0])
-def test_01_metal_plate_at_several_angles_depth_1(yaw):
+@pytest.mark.parametrize("yaw, subdiv", [(0.0, 4), (25.0, 4), (50.0, 4), (25.0, 2)])
+def test_01_metal_plate_at_several_angles_depth_1(yaw, subdiv):
     """A 0.3 m PEC plate at 3 m, turned by ``yaw``: single-bounce physical optics
-    with the exact triangle average (specular at 0 deg, side lobes beyond)."""
-    scene = load_scene({"plate": square_plate([3, 0, 0], 0.3, yaw_deg=yaw, subdiv=2)},
+    (specular at 0 deg, side lobes beyond).  Split 4 times (2 cm triangles,
+    ``k D^2 / R ~ 0.4``) every hit carries the exact triangle average; split
+    twice (``k D^2 / R ~ 6``) none does (the point sample)."""
+    scene = load_scene({"plate": square_plate([3, 0, 0], 0.3, yaw_deg=yaw, subdiv=subdiv)},
                        materials={"plate": "metal"}, radar=RadarConfig.awr1843())
     paths, twin, *figures = _compare(scene, max_depth=1, cone_angle_deg=6.0)
     assert paths.num_paths > 100
