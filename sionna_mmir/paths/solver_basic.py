@@ -29,10 +29,10 @@ Subset covered (the solver called with ``sampling="random"``,
   and the area density ``pdf |k_2 . n_g| / (L_0 + |x_2 - x_1|)^2``;
 * ``F``: the exact triangle average ``(1 / A) int exp(-j q . (y - x)) dA``
   with ``q = k (M_1^T u_rx + u_tx)``, evaluated as the second divided
-  difference of ``exp`` through a 3 x 3 matrix exponential (Opitz's formula)
-  -- an independent evaluation of what
-  :mod:`~sionna_mmir.paths.triangle_po` writes as series -- where the
-  triangle is small against the Fresnel zone (``k D^2 / R < 1``), else 1;
+  difference of ``exp`` (its partial-fraction sum, or a 3 x 3 matrix
+  exponential -- Opitz's formula -- for close nodes), independently of the
+  series of :mod:`~sionna_mmir.paths.triangle_po`, where the triangle is
+  small against the Fresnel zone (``k D^2 / R < 1``), else 1;
 * per-pair legs: ``a[i, j, p] = conj(C_p) sqrt(G_t) sqrt(G_r) / (|X_p - tx_i|
   |X*_p - rx_j|)``, ``tau[i, j, p] = (|X_p - tx_i| + |X*_p - rx_j|) / c``
   (``X*`` = ``X`` at depth 1), the FMCW beat convention of
@@ -290,12 +290,20 @@ def _coherent(ctx, st) -> complex:
 
 
 def _triangle_average(q, tri, x) -> complex:
-    """``(1 / A) int_T exp(-j q . (y - x)) dA(y)`` = ``2 exp[z_0, z_1, z_2]``
-    (``z_i = -j q . (P_i - x)``; the divided difference is the corner entry of
-    the exponential of the bidiagonal matrix of the ``z_i``)."""
+    """``(1 / A) int_T exp(-j q . (y - x)) dA(y)`` = ``2 exp[z_0, z_1, z_2]``,
+    the second divided difference of ``exp`` at ``z_i = -j q . (P_i - x)``:
+    ``sum_i exp(z_i) / prod_{k != i} (z_i - z_k)`` for well separated nodes,
+    else the corner entry of the exponential of the bidiagonal matrix of the
+    nodes (shifted by their mean, which keeps the matrix small)."""
     z = -1j * np.array([q @ (p - x) for p in tri])
-    A = np.diag(z) + np.diag([1.0, 1.0], 1)
-    return complex(2.0 * expm(A)[0, 2])
+    gaps = [abs(z[0] - z[1]), abs(z[0] - z[2]), abs(z[1] - z[2])]
+    if min(gaps) > 1e-2:
+        dd = sum(np.exp(z[i]) / np.prod([z[i] - z[k] for k in range(3) if k != i])
+                 for i in range(3))
+        return complex(2.0 * dd)
+    mean = z.mean()
+    A = np.diag(z - mean) + np.diag([1.0, 1.0], 1)
+    return complex(2.0 * np.exp(mean) * expm(A)[0, 2])
 
 
 def _reflect(E, s):
