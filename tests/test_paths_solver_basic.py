@@ -146,6 +146,6 @@ def test_05_options_outside_the_subset_raise():
     scene = load_scene({"plate": square_plate([3, 0, 0], 0.3)}, materials={"plate": "metal"},
                        radar=RadarConfig.awr1843())
     for bad in ({"scattering": True}, {"max_depth": 3}, {"sampling": "facets"},
-                {"diffraction": True}, {"min_rel_power": 1e-3}):
+                {"diffraction": True}, {"min_rel_power": 1e-3}, {"max_depth": 2, "rr_depth": 1}):
         with pytest.raises(ValueError, match="subset"):
             solve_basic(scene, **{**OPTIONS, **bad})

@@ -9,7 +9,8 @@ synthesis.
 
 Subset covered (the solver called with ``sampling="random"``,
 ``coherent=True``, ``scattering=False``, ``diffraction=False``,
-``min_rel_power=0``, ``max_depth`` 1 or 2, static scene and radar):
+``min_rel_power=0``, ``max_depth`` 1 or 2, ``rr_depth >= max_depth``, static
+scene and radar; any element patterns, with or without ``triangle_average``):
 
 * candidate rays: the same ``N`` directions and densities as the solver, drawn
   from :class:`~sionna_mmir.paths.sampling.RandomCone` with the same seed
@@ -41,9 +42,10 @@ Subset covered (the solver called with ``sampling="random"``,
 Where it deliberately differs: float64 throughout (the solver rebuilds
 points from float32 barycentrics); the hit point is re-intersected in float64
 with the triangle Mitsuba reports; no pruning, no roulette (with
-``max_depth <= 2`` the solver's roulette, from ``rr_depth = 2`` on, never
-acts), no BSDF-scattered term, no diffraction, no facet quadrature or lit
-apertures, no motion and no automatic differentiation.
+``rr_depth >= max_depth`` the solver's roulette never acts), no
+BSDF-scattered term or its reciprocal twin, no diffraction, no facet
+quadrature or lit apertures, no motion (delay rates) and no automatic
+differentiation (the solver's ``area_ratio`` is 1 in value).
 
 References: Knott, Shaeffer & Tuley, *Radar Cross Section* (physical optics);
 ITU-R P.2040-3 (slab coefficients); Opitz, *Z. Angew. Math. Mech.* 44 (1964)
@@ -353,11 +355,13 @@ def _check_subset(opts) -> None:
     bad = {"sampling": opts.sampling != "random", "coherent": not opts.coherent,
            "scattering": bool(opts.scattering), "diffraction": bool(opts.diffraction),
            "min_rel_power": opts.min_rel_power > 0, "max_depth": opts.max_depth > 2,
+           "rr_depth": opts.rr_depth < opts.max_depth,
            "velocities": opts.velocities is not None,
            "radar_velocity": opts.radar_velocity is not None}
     named = [k for k, v in bad.items() if v]
     if named:
-        raise ValueError(f"solve_basic covers coherent random-cone paths of depth <= 2 only; "
+        raise ValueError(f"solve_basic covers coherent random-cone paths of depth <= 2 "
+                         f"without roulette only; "
                          f"outside that subset: {named}")
 
 

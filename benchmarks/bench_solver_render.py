@@ -7,7 +7,7 @@ output.  It uses only the keyword API that every version of
 :class:`~sionna_mmir.paths.RadarPathSolver` accepts, so the same file times
 any checkout imported through ``PYTHONPATH``::
 
-    PYTHONPATH=/path/to/checkout python comparisons/bench_solver_render.py \\
+    PYTHONPATH=/path/to/checkout python benchmarks/bench_solver_render.py \\
         --sampling random --calls 3 --out /tmp/adc.npy
 
 The process is meant to be timed as a whole (e.g. ``/usr/bin/time -v``), in
