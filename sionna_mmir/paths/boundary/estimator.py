@@ -39,10 +39,13 @@ seen from the array centre because the solver connects every depth-1
 return to the transmitter through that same point: the primary ray and the
 connection share one visibility.
 
+The rim of the random rays' cone is a boundary of the same kind, fixed in
+the radar frame (:func:`rim_emissions`): when the radar turns or moves, it
+sweeps over the scene.
+
 Scope: the coherent (physical-optics) depth-1 field and the radar pose and
 vertex positions; deeper chains and the random-phase speckle part (zero
-mean in the ADC) get no boundary term, nor does the ray cone's rim (the
-default 90 deg cone ends where element patterns vanish).
+mean in the ADC) get no boundary term.
 """
 from __future__ import annotations
 
@@ -121,8 +124,27 @@ def _displacement(ctx, s, c, y):
     return disp - dr.detach(disp)
 
 
-def boundary_emissions(ctx, seed: int) -> list:
-    """The boundary paths of one solver call (an empty list when no
+def _paths(ctx, hit, ok, w, displacement):
+    """Zero-valued paths at the first hits ``hit`` (directions ``ok``) of
+    weight ``w`` (``mi.Float``) times ``displacement(y) - detach(...)``."""
+    geo = ctx.geo
+    M = dr.width(w)
+    bctx = dataclasses.replace(ctx, tape=Tape())
+    it = geo.interaction(*hit, bctx.tape)
+    st = start_state(bctx, it, dr.ones(mi.Float, M), it.tri)     # pdf 1: amplitude H / n_est
+    surf = at_surface(bctx, st, 1)
+    conn = connect(bctx, st, surf)
+    coherent.unfold(st, surf, 1)
+    wr, wi, _ = coherent.coherent_field(bctx, st, surf, conn, 1)
+    ok &= (surf.cos_in > 0) & (dr.dot(surf.ng, conn.k_t) > 0) & (conn.cos_t > 0)
+    disp = displacement(it.p)
+    kappa = dr.select(ok, w * (disp - dr.detach(disp)), 0.0)
+    return [Emission(wr * kappa, wi * kappa, surf.x, st.x1, zeros(M), zeros(M), conn.rate, 1,
+                     ok, st.obj1, boundary=True)]
+
+
+def edge_emissions(ctx, seed: int) -> list:
+    """The boundary paths of the silhouette edges (an empty list when no
     silhouette edge lies in the cone), ``seed`` the strata offsets' seed."""
     geo, opts = ctx.geo, ctx.options
     V = np.asarray(dr.detach(geo.positions), dtype=np.float64).reshape(-1, 3)
@@ -132,23 +154,52 @@ def boundary_emissions(ctx, seed: int) -> list:
     s = edges.sample(V, c, int(opts.boundary_samples), seed, bore, cos_cone)
     if s is None:
         return []
-    M = len(s)
-    ok, (valid, obj, face, u, v) = _probe(geo, c, s)
+    ok, hit = _probe(geo, c, s)
     ray = s.point - c
     r_e = np.linalg.norm(ray, axis=1)
     ray /= r_e[:, None]
     ok &= mi.Bool(ray @ bore >= cos_cone)
-    bctx = dataclasses.replace(ctx, tape=Tape())
-    it = geo.interaction(valid, obj, face, u, v, bctx.tape)
-    st = start_state(bctx, it, dr.ones(mi.Float, M), it.tri)     # pdf 1: amplitude H / n_est
-    surf = at_surface(bctx, st, 1)
-    conn = connect(bctx, st, surf)
-    coherent.unfold(st, surf, 1)
-    wr, wi, _ = coherent.coherent_field(bctx, st, surf, conn, 1)
-    ok &= (surf.cos_in > 0) & (dr.dot(surf.ng, conn.k_t) > 0) & (conn.cos_t > 0)
     tang = V[s.v1] - V[s.v0]
     sin_a = np.linalg.norm(np.cross(ray, tang / np.linalg.norm(tang, axis=1)[:, None]), axis=1)
     w = mi.Float((-float(ctx.n_est) * sin_a / r_e * s.inv_density).astype(np.float32))
-    kappa = dr.select(ok, w * _displacement(ctx, s, c, it.p), 0.0)
-    return [Emission(wr * kappa, wi * kappa, surf.x, st.x1, zeros(M), zeros(M), conn.rate, 1,
-                     ok, st.obj1, boundary=True)]
+    return _paths(ctx, hit, ok, w, lambda y: _displacement(ctx, s, c, y))
+
+
+def rim_emissions(ctx, seed: int) -> list:
+    """The boundary paths of the rim of the random rays' cone.
+
+    The cone is fixed in the radar frame, so when the radar turns or moves
+    it sweeps over the scene: along the rim (half-angle ``beta``, unit
+    outward normal ``n`` on the sphere of directions) the relative
+    displacement is ``s = n . w(theta) - n . (y - c) / r_y`` and the region
+    inside gains ``sin(beta) dphi ds`` of solid angle (``M`` stratified
+    azimuths ``phi``)."""
+    opts = ctx.options
+    M = max(int(opts.boundary_samples) // 4, 16)
+    beta = math.radians(float(opts.cone_angle_deg))
+    phi = 2.0 * math.pi * (np.arange(M) + np.random.default_rng(int(seed) + 1).random(M)) / M
+    cb, sb = math.cos(beta), math.sin(beta)
+    d_loc = np.stack([np.full(M, cb), sb * np.cos(phi), sb * np.sin(phi)], axis=1)
+    n_loc = np.stack([np.full(M, -sb), cb * np.cos(phi), cb * np.sin(phi)], axis=1)
+    pose = ctx.pose
+    w_dir = pose.to_scene(_vec(d_loc))                               # AD (orientation)
+    n = dr.detach(pose.to_scene(_vec(n_loc)))
+    c = dr.detach(ctx.c_w)
+    origin = dr.zeros(mi.Point3f, M) + c
+    hit = ctx.geo._trace(origin, dr.detach(w_dir), True)
+    ok = mi.Bool(hit[0])
+    w = dr.full(mi.Float, float(ctx.n_est) * sb * 2.0 * math.pi / M, M)
+
+    def displacement(y):
+        r_y = dr.detach(dr.norm(y - ctx.c_w))
+        return dr.dot(n, w_dir) - dr.dot(n, y - ctx.c_w) / r_y
+    return _paths(ctx, hit, ok, w, displacement)
+
+
+def boundary_emissions(ctx, seed: int) -> list:
+    """The boundary paths of one solver call: silhouette edges and (random
+    rays) the cone's rim; ``seed`` seeds the strata offsets."""
+    out = edge_emissions(ctx, seed)
+    if ctx.options.sampling == "random":
+        out += rim_emissions(ctx, seed)
+    return out
