@@ -43,7 +43,7 @@ SEEDS = (0, 1, 2)
 
 
 def _scene():
-    radar = dataclasses.replace(RadarConfig.awr1843(), num_samples=32, num_chirps=1)
+    radar = dataclasses.replace(RadarConfig.awr1843(), num_samples=16, num_chirps=1)
     wall = square_plate([1.5, 0.0, 0.0], 1.4, subdiv=7)
     occ = square_plate([1.0, 0.1, 0.0], 0.2, yaw_deg=40.0, subdiv=4)
     sc = load_scene({"wall": wall, "occ": occ}, radar=radar)
