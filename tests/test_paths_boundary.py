@@ -175,3 +175,29 @@ def test_05_boundary_paths_change_no_rendered_value(scene):
     a_off = off.adc(scene.radar)
     np.testing.assert_allclose(np.asarray(a_on.real.array), np.asarray(a_off.real.array),
                                rtol=1e-6, atol=1e-12)
+
+
+def test_06_silhouettes_of_a_cube_and_options_checked():
+    import trimesh
+
+    from sionna_mmir.errors import ConfigError
+    from sionna_mmir.paths import SolverOptions
+    from sionna_mmir.paths.boundary import SilhouetteEdges
+
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    V, F = np.asarray(box.vertices, float), np.asarray(box.faces, np.int64)
+    edges = SilhouetteEdges(F, V)
+    assert len(edges.v0) == 12                 # the cube's edges; face diagonals are flat
+    # seen from a generic point, the outline of a cube is a hexagon: six edges
+    assert edges.silhouettes(V, np.array([3.0, 2.0, 1.5])).size == 6
+    # face-on, the outline is the near face's four edges (the far face's four
+    # fold edges line up with them)
+    s = edges.sample(V, np.array([3.0, 0.0, 0.0]), 400, 0)
+    assert len(s) == 400 and np.all(s.inv_density > 0)
+    near = np.isclose(s.point[:, 0], 0.5)
+    # a sample on the near face's edges points away from the cube
+    out = np.einsum("ij,ij->i", s.far[near], s.point[near] - np.array([0.5, 0.0, 0.0]))
+    assert np.all(out > 0)
+    for bad in (dict(boundary_samples=0), dict(boundary="yes"), dict(stratified=2.5)):
+        with pytest.raises(ConfigError):
+            SolverOptions(**bad)
