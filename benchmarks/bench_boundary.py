@@ -98,6 +98,7 @@ def _sionna(meshes, radar):
     scene.add(rt.Transmitter("radar_tx", position=centre, orientation=mi.Point3f(0, 0, 0)))
     scene.add(rt.Receiver("radar_rx", position=centre, orientation=mi.Point3f(0, 0, 0)))
     solver = rt.PathSolver()
+    solver.loop_mode = "evaluated"          # reverse-mode AD through Sionna's loop
     kw = dict(max_depth=1, samples_per_src=RAYS, max_num_paths_per_src=RAYS, los=False,
               specular_reflection=True, diffuse_reflection=True, refraction=False,
               diffraction=False, synthetic_array=True, seed=0)

@@ -88,16 +88,18 @@ def _frame(ctx):
     return c, bore, math.cos(math.radians(float(ctx.options.cone_angle_deg)))
 
 
-def _probe(geo, c, s):
+def _probe(ctx, c, s):
     """Trace the near and far probes of every edge sample (no AD).
 
     Returns ``(ok, far hit)``: ``ok`` where the edge point is seen from ``c``
     (the near probe meets one of the edge's own faces) and something lies
     behind it; the far hit ``(valid, obj, face, u, v)``.
     """
+    geo = ctx.geo
     r_e = np.linalg.norm(s.point - c, axis=1, keepdims=True)
     M = len(s)
-    origin = dr.zeros(mi.Point3f, M) + mi.Point3f(*(float(x) for x in c))
+    # the centre as an array, not literals: a new pose must not recompile kernels
+    origin = dr.zeros(mi.Point3f, M) + dr.detach(ctx.c_w)
     d_near = s.point - PROBE * r_e * s.far - c
     d_far = s.point + PROBE * r_e * s.far - c
     d_near /= np.linalg.norm(d_near, axis=1, keepdims=True)
@@ -154,7 +156,7 @@ def edge_emissions(ctx, seed: int) -> list:
     s = edges.sample(V, c, int(opts.boundary_samples), seed, bore, cos_cone)
     if s is None:
         return []
-    ok, hit = _probe(geo, c, s)
+    ok, hit = _probe(ctx, c, s)
     ray = s.point - c
     r_e = np.linalg.norm(ray, axis=1)
     ray /= r_e[:, None]
@@ -188,7 +190,7 @@ def rim_emissions(ctx, seed: int) -> list:
     origin = dr.zeros(mi.Point3f, M) + c
     hit = ctx.geo._trace(origin, dr.detach(w_dir), True)
     ok = mi.Bool(hit[0])
-    w = dr.full(mi.Float, float(ctx.n_est) * sb * 2.0 * math.pi / M, M)
+    w = dr.full(mi.Float, dr.opaque(mi.Float, float(ctx.n_est) * sb * 2.0 * math.pi / M), M)
 
     def displacement(y):
         r_y = dr.detach(dr.norm(y - ctx.c_w))
