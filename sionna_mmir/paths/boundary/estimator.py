@@ -190,7 +190,7 @@ def rim_emissions(ctx, seed: int) -> list:
     origin = dr.zeros(mi.Point3f, M) + c
     hit = ctx.geo._trace(origin, dr.detach(w_dir), True)
     ok = mi.Bool(hit[0])
-    w = dr.full(mi.Float, dr.opaque(mi.Float, float(ctx.n_est) * sb * 2.0 * math.pi / M), M)
+    w = dr.opaque(mi.Float, float(ctx.n_est) * sb * 2.0 * math.pi / M, M)
 
     def displacement(y):
         r_y = dr.detach(dr.norm(y - ctx.c_w))
