@@ -128,21 +128,29 @@ def _displacement(ctx, s, c, y):
 
 def _paths(ctx, hit, ok, w, displacement):
     """Zero-valued paths at the first hits ``hit`` (directions ``ok``) of
-    weight ``w`` (``mi.Float``) times ``displacement(y) - detach(...)``."""
+    weight ``w`` (``mi.Float``) times ``displacement(y) - detach(...)``.
+
+    The far-side field is evaluated outside AD: the path's value is zero, so
+    the derivative of ``field * kappa`` is ``field * d kappa`` exactly, and
+    only the displacement ``kappa`` carries gradients (a small graph)."""
     geo = ctx.geo
     M = dr.width(w)
     bctx = dataclasses.replace(ctx, tape=Tape())
     it = geo.interaction(*hit, bctx.tape)
-    st = start_state(bctx, it, dr.ones(mi.Float, M), it.tri)     # pdf 1: amplitude H / n_est
-    surf = at_surface(bctx, st, 1)
-    conn = connect(bctx, st, surf)
-    coherent.unfold(st, surf, 1)
-    wr, wi, _ = coherent.coherent_field(bctx, st, surf, conn, 1)
-    ok &= (surf.cos_in > 0) & (dr.dot(surf.ng, conn.k_t) > 0) & (conn.cos_t > 0)
     disp = displacement(it.p)
-    kappa = dr.select(ok, w * (disp - dr.detach(disp)), 0.0)
-    return [Emission(wr * kappa, wi * kappa, surf.x, st.x1, zeros(M), zeros(M), conn.rate, 1,
-                     ok, st.obj1, boundary=True)]
+    with dr.suspend_grad():
+        st = start_state(bctx, it, dr.ones(mi.Float, M), it.tri)  # pdf 1: amplitude H / n_est
+        surf = at_surface(bctx, st, 1)
+        conn = connect(bctx, st, surf)
+        coherent.unfold(st, surf, 1)
+        wr, wi, _ = coherent.coherent_field(bctx, st, surf, conn, 1)
+        ok &= (surf.cos_in > 0) & (dr.dot(surf.ng, conn.k_t) > 0) & (conn.cos_t > 0)
+        wr, wi = dr.select(ok, wr, 0.0), dr.select(ok, wi, 0.0)
+        x, x1, rate = dr.detach(surf.x), dr.detach(st.x1), dr.detach(conn.rate)
+        dr.eval(wr, wi, ok, x, x1, rate)
+    kappa = w * (disp - dr.detach(disp))
+    return [Emission(wr * kappa, wi * kappa, x, x1, zeros(M), zeros(M), rate, 1, ok, st.obj1,
+                     boundary=True)]
 
 
 def edge_emissions(ctx, seed: int) -> list:
