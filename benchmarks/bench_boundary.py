@@ -120,10 +120,7 @@ def _sionna(meshes, radar):
 def measure() -> dict:
     """Timings [s] and ratios, with a Markdown table under ``"markdown"``."""
     scene, pose_fit = _scene()
-    meshes = {"wall": pose_fit.plate([4.0, 0.0, 0.0], 3.0, facing=False),
-              "occluder": pose_fit.plate([2.0, 0.25, 0.0], 0.5),
-              "left": pose_fit.plate([2.5, 0.9, 0.1], 0.3),
-              "right": pose_fit.plate([3.0, -1.0, -0.1], 0.4)}
+    meshes = pose_fit.meshes()
     t_off = _best(_mmir(scene, False))
     t_on = _best(_mmir(scene, True))
     try:

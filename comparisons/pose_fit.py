@@ -8,9 +8,11 @@ The fit starts at the nominal pose and learns the radar pose only
 ``pose_dofs=("x", "y", "yaw")``: what a range-azimuth map observes; the
 min-max range-azimuth loss, Adam) -- once with ``SolverOptions.boundary`` on and
 once off.  The scene: a wall 4 m ahead, a plate partly hiding it (its
-silhouette over the wall moves with the radar: parallax), and two plates
-facing the radar at other ranges and azimuths (so that range, azimuth and
-their change with range pin down x, y and yaw).
+silhouette over the wall moves with the radar: parallax), two plates facing
+the radar at +-40 deg (a sideways shift moves their ranges in opposite
+directions, a yaw does not) and a near plate (azimuth moves with y as
+``1 / range``): range, azimuth and their change with range pin down x, y
+and yaw.
 
 Reproduce (writes ``comparisons/pose_fit.md`` and ``pose_fit.json``)::
 
@@ -54,6 +56,16 @@ def plate(centre, size, subdiv=0, facing=True):
     return m
 
 
+def meshes() -> dict:
+    """The scene's meshes: a wall, a plate partly hiding it, plates facing the
+    radar at +-40 deg (their ranges move with y, not with yaw) and a near one."""
+    return {"wall": plate([4.0, 0.0, 0.0], 3.0, facing=False),
+            "occluder": plate([2.0, 0.25, 0.0], 0.5),
+            "left": plate([1.8, 1.5, 0.1], 0.4),
+            "right": plate([2.6, -2.2, -0.1], 0.5),
+            "near": plate([1.1, -0.5, 0.0], 0.2)}
+
+
 def build_scene():
     from sionna_mmir.radar import RadarConfig
     from sionna_mmir.scene import load_scene
@@ -63,11 +75,7 @@ def build_scene():
     import mitsuba as mi
 
     radar = dataclasses.replace(RadarConfig.awr1843(), num_chirps=1)
-    meshes = {"wall": plate([4.0, 0.0, 0.0], 3.0, facing=False),
-              "occluder": plate([2.0, 0.25, 0.0], 0.5),
-              "left": plate([2.5, 0.9, 0.1], 0.3),
-              "right": plate([3.0, -1.0, -0.1], 0.4)}
-    sc = load_scene(meshes, radar=radar)
+    sc = load_scene(meshes(), radar=radar)
     for name, obj in sc.mesh_objects.items():
         mat = WALL if name == "wall" else METAL
         obj.vertex_materials = mi.TensorXf(np.tile(mat, (obj.vertex_positions.shape[0], 1)))

@@ -14,10 +14,15 @@ narrow ``cos^60`` element pattern (whose two-way gain at the cone's rim is
 of the raw ADC, ``sum |s|^2``.  Estimates are averaged over a few seeds of
 jittered-grid (stratified) rays, each finite difference and AD gradient with
 the same seeds (common random numbers).
+
+``BOUNDARY_REPORT=1 python -m pytest tests/test_paths_boundary.py -s`` also
+prints the AD gradient without the boundary term for every case (the figures
+of ``docs/results.md``).
 """
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -108,9 +113,11 @@ def compare(param, step, seeds=SEEDS, without=False):
     """``(fd, ad with the boundary term[, ad without])`` averaged over ``seeds``."""
     fd = np.mean([param.fd(step, s) for s in seeds])
     ad = np.mean([param.ad(s, True) for s in seeds])
-    if not without:
-        return fd, ad
-    return fd, ad, np.mean([param.ad(s, False) for s in seeds])
+    report = os.environ.get("BOUNDARY_REPORT") == "1"
+    off = np.mean([param.ad(s, False) for s in seeds]) if (without or report) else None
+    if report:
+        print(f"\n[report] FD {fd:.4e}  AD with boundary {ad:.4e}  without {off:.4e}")
+    return (fd, ad, off) if without else (fd, ad)
 
 
 def _check(fd, ad, what):
