@@ -7,12 +7,14 @@ The fit starts at the nominal pose and learns the radar pose only
 (:class:`~sionna_mmir.fit.MMIRModel` with ``learn=("pose",)`` and
 ``pose_dofs=("x", "y", "yaw")``: what a range-azimuth map observes; the
 min-max range-azimuth loss, Adam) -- once with ``SolverOptions.boundary`` on and
-once off.  The scene: a wall 4 m ahead, a plate partly hiding it (its
-silhouette over the wall moves with the radar: parallax), two plates facing
-the radar at +-40 deg (a sideways shift moves their ranges in opposite
-directions, a yaw does not) and a near plate (azimuth moves with y as
-``1 / range``): range, azimuth and their change with range pin down x, y
-and yaw.
+once off.  The scene: four metal spheres at 1.2 to 3.2 m and -26 to +28 deg
+(point returns whose range and azimuth move smoothly with the radar: a
+sideways shift moves their ranges in opposite directions and their azimuths
+as ``1 / range``, a yaw turns all azimuths alike, so range, azimuth and their
+change with range pin down x, y and yaw) and a plate hiding the limb of the
+farthest sphere (its silhouette over the sphere moves with the radar:
+parallax).  Plates facing the radar would not do: their edge diffraction
+ripples the loss with a period of about 2 cm of radar motion (local minima).
 
 Reproduce (writes ``comparisons/pose_fit.md`` and ``pose_fit.json``)::
 
@@ -32,7 +34,6 @@ import numpy as np
 HERE = pathlib.Path(__file__).resolve().parent
 COMMAND = "python comparisons/pose_fit.py"
 METAL = np.array([1.0, 1e6, 1e-5, 1e-2, 0.9, 0.01], np.float32)
-WALL = np.array([5.0, 0.3, 1e-4, 5e-3, 0.5, 0.2], np.float32)
 #: true radar pose: position [m], (yaw, pitch, roll) [rad]
 TRUTH = (np.array([0.012, -0.016, 0.0]), np.array([math.radians(1.0), 0.0, 0.0]))
 ITERATIONS = 80
@@ -41,29 +42,41 @@ LR = 0.12
 DOFS = ("x", "y", "yaw")
 
 
-def plate(centre, size, subdiv=0, facing=True):
-    """A square metal plate at ``centre`` turned to face the origin."""
+def plate(centre, size, subdiv=0, facing=True, yaw_deg=0.0):
+    """A square plate at ``centre`` turned to face the origin (``facing``) or
+    by ``yaw_deg`` about +z."""
     import trimesh
 
     v = np.array([[0, -1, -1], [0, 1, -1], [0, 1, 1], [0, -1, 1]], float) * size / 2
     m = trimesh.Trimesh(v, [[0, 2, 1], [0, 3, 2]], process=False)
     for _ in range(subdiv):
         m = m.subdivide()
-    if facing:
-        yaw = math.atan2(centre[1], centre[0])
+    yaw = math.atan2(centre[1], centre[0]) if facing else math.radians(yaw_deg)
+    if yaw:
         m.apply_transform(trimesh.transformations.rotation_matrix(yaw, [0, 0, 1]))
     m.apply_translation(centre)
     return m
 
 
+def sphere(centre, radius):
+    """A metal sphere (icosphere, 5120 faces) at ``centre``."""
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    m.apply_translation(centre)
+    return m
+
+
 def meshes() -> dict:
-    """The scene's meshes: a wall, a plate partly hiding it, plates facing the
-    radar at +-40 deg (their ranges move with y, not with yaw) and a near one."""
-    return {"wall": plate([4.0, 0.0, 0.0], 3.0, facing=False),
-            "occluder": plate([2.0, 0.25, 0.0], 0.5),
-            "left": plate([1.8, 1.5, 0.1], 0.4),
-            "right": plate([2.6, -2.2, -0.1], 0.5),
-            "near": plate([1.1, -0.5, 0.0], 0.2)}
+    """The scene's meshes: four spheres at several ranges and azimuths (point
+    returns that move smoothly with the radar: no edge in view) and a plate
+    turned 40 deg hiding the limb of the farthest (its silhouette over that
+    sphere moves with the radar: parallax)."""
+    return {"s_near": sphere([1.2, -0.3, 0.0], 0.1),
+            "s_left": sphere([1.5, 0.8, 0.0], 0.12),
+            "s_right": sphere([2.5, -1.2, 0.1], 0.12),
+            "s_far": sphere([3.2, 0.3, -0.05], 0.15),
+            "occluder": plate([2.2, 0.12, 0.0], 0.2, facing=False, yaw_deg=40.0)}
 
 
 def build_scene():
@@ -77,8 +90,7 @@ def build_scene():
     radar = dataclasses.replace(RadarConfig.awr1843(), num_chirps=1)
     sc = load_scene(meshes(), radar=radar)
     for name, obj in sc.mesh_objects.items():
-        mat = WALL if name == "wall" else METAL
-        obj.vertex_materials = mi.TensorXf(np.tile(mat, (obj.vertex_positions.shape[0], 1)))
+        obj.vertex_materials = mi.TensorXf(np.tile(METAL, (obj.vertex_positions.shape[0], 1)))
     sc.sync()
     return sc
 
