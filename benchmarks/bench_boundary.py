@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 RAYS = 200_000
-REPEATS = 3
+REPEATS = 5
 HERE = pathlib.Path(__file__).resolve().parent
 
 
