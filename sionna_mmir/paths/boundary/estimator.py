@@ -76,11 +76,6 @@ def _vec(a):
     return mi.Vector3f(mi.Float(a[:, 0]), mi.Float(a[:, 1]), mi.Float(a[:, 2]))
 
 
-def _point(a):
-    a = np.asarray(a, dtype=np.float32)
-    return mi.Point3f(mi.Float(a[:, 0]), mi.Float(a[:, 1]), mi.Float(a[:, 2]))
-
-
 def _frame(ctx):
     """``(c, boresight, cos of the cone)`` of the call, detached NumPy."""
     c = np.array([float(dr.detach(ctx.c_w)[i][0]) for i in range(3)], dtype=np.float64)
@@ -112,7 +107,8 @@ def _probe(ctx, c, s):
 
 
 def _displacement(ctx, s, c, y):
-    """``s(theta) - detach(s)`` of the module docstring (AD; zero in value)."""
+    """The edges' relative angular displacement ``s(theta)`` of the module
+    docstring (AD) at the far points ``y``."""
     geo = ctx.geo
     i0, i1 = mi.UInt32(s.v0.astype(np.uint32)), mi.UInt32(s.v1.astype(np.uint32))
     p0 = mi.Point3f(*(dr.gather(mi.Float, geo.positions, i0 * 3 + k) for k in range(3)))
@@ -122,8 +118,7 @@ def _displacement(ctx, s, c, y):
     n = _vec(s.far)
     r_e = mi.Float(np.linalg.norm(s.point - c, axis=1).astype(np.float32))
     r_y = dr.detach(dr.norm(y - ctx.c_w))
-    disp = dr.dot(n, e - ctx.c_w) / r_e - dr.dot(n, y - ctx.c_w) / r_y
-    return disp - dr.detach(disp)
+    return dr.dot(n, e - ctx.c_w) / r_e - dr.dot(n, y - ctx.c_w) / r_y
 
 
 def _paths(ctx, hit, ok, w, displacement):
