@@ -2,8 +2,8 @@
 
 One scene (the pose-fit scene of ``comparisons/pose_fit.py``: a wall, a plate
 partly hiding it and two plates), the AWR1843, depth 1, ``RAYS`` random rays.
-Each row is the best of ``REPEATS`` timed runs after one warm-up (kernels
-compiled):
+Each row is the best of ``REPEATS`` interleaved rounds after one warm-up
+(kernels compiled):
 
 * mmIR, boundary off / on: solver call, ADC synthesis, ``sum |s|^2`` and its
   backward pass to the radar pose (position and orientation);
@@ -36,14 +36,19 @@ def _scene():
     return pose_fit.build_scene(), pose_fit
 
 
-def _best(fn) -> float:
-    fn()
-    times = []
-    for _ in range(REPEATS):
-        t = time.perf_counter()
+def _best(fns) -> list:
+    """Best time [s] of each of ``fns``, run interleaved (one warm-up each,
+    then ``REPEATS`` rounds), so that a machine shared with other jobs slows
+    all of them alike."""
+    for fn in fns:
         fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
+    times = [[] for _ in fns]
+    for _ in range(REPEATS):
+        for i, fn in enumerate(fns):
+            t = time.perf_counter()
+            fn()
+            times[i].append(time.perf_counter() - t)
+    return [min(t) for t in times]
 
 
 def _mmir(scene, boundary: bool):
@@ -121,16 +126,15 @@ def measure() -> dict:
     """Timings [s] and ratios, with a Markdown table under ``"markdown"``."""
     scene, pose_fit = _scene()
     meshes = pose_fit.meshes()
-    t_off = _best(_mmir(scene, False))
-    t_on = _best(_mmir(scene, True))
+    fns, note = [_mmir(scene, False), _mmir(scene, True)], ""
     try:
-        t_sionna = _best(_sionna(meshes, scene.radar))
+        fns.append(_sionna(meshes, scene.radar))
     except Exception as exc:           # Sionna missing or failing: report, do not hide
-        t_sionna, note = float("nan"), f" (Sionna RT failed: {type(exc).__name__}: {exc})"
-    else:
-        note = ""
+        note = f" (Sionna RT failed: {type(exc).__name__}: {exc})"
+    times = _best(fns) + [float("nan")]
+    t_off, t_on, t_sionna = times[:3]
     md = "\n".join([
-        f"Speed, forward + backward, depth 1, {RAYS} rays, best of {REPEATS} "
+        f"Speed, forward + backward, depth 1, {RAYS} rays, best of {REPEATS} interleaved rounds "
         f"(`python benchmarks/bench_boundary.py`){note}:", "",
         "| | seconds | vs boundary off | vs Sionna RT |", "|---|---|---|---|",
         f"| mmIR, boundary off | {t_off:.3f} | 1.00 | {t_off / t_sionna:.2f} |",
