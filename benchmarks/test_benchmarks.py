@@ -40,3 +40,16 @@ def test_bench_path_solver_vs_sionna_quick():
     assert fb["info"]["grad_abs_sum"] > 0            # gradients reached the vertex tensors
     md = bench_paths.to_markdown(res)
     assert "sionna_mmir" in md and "Sionna RT" in md and "fwd+bwd" in md
+
+
+@pytest.mark.benchmark
+def test_bench_boundary_term_cost():
+    """Forward + backward with the boundary term on / off and Sionna RT (timings printed)."""
+    import math
+
+    import bench_boundary
+
+    res = bench_boundary.measure()
+    print("\n" + res["markdown"])
+    assert res["boundary_on_s"] > 0 and res["boundary_off_s"] > 0
+    assert math.isfinite(res["on_vs_off"])

@@ -218,7 +218,8 @@ def test_12_fit_bad_inputs_exit_2_without_output(tmp_path, capsys):
              ([tgt, str(empty), "--shading", "auto"], "no faces"),
              ([tgt, wall, "--min-rel-power", "-1"], "min_rel_power"),
              ([tgt, wall, "--normals-smoothing", "nan"], "normals_smoothing"),
-             ([tgt, wall, "--materials-smoothing", "-3"], "materials_smoothing")]
+             ([tgt, wall, "--materials-smoothing", "-3"], "materials_smoothing"),
+             ([tgt, wall, "--learn", "pose,colour"], "--learn")]
     for args, word in cases:
         out = tmp_path / "o"
         code = main(["fit", *args, "--rays", "500", "--out", str(out)])
@@ -250,3 +251,14 @@ def test_13_bench_reports_both_timings_and_rejects_bad_options(tmp_path, capsys)
         main(["bench", "--shading", "round"])
     assert e.value.code == EXIT_BAD_INPUT and "invalid choice" in capsys.readouterr().err
     assert res["learn"] == ["materials", "beam"]
+
+
+def test_14_fit_learns_the_radar_pose_with_the_boundary_term(tmp_path):
+    import json
+
+    wall, tgt = _target_capture(tmp_path)
+    out = tmp_path / "pose"
+    assert main(["fit", tgt, wall, "--iterations", "2", "--rays", "1500", "--learn", "pose",
+                 "--boundary", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["mmIR"]["loss"]) == 2

@@ -116,3 +116,16 @@ def test_05_bad_inputs(problem, tmp_path):
         load_checkpoint(str(junk))
     with pytest.raises(ConfigError, match="cannot learn"):
         MMIRModel(load_scene(problem[1], radar=radar), learn=("colour",))
+
+
+def test_06_pose_fit_moves_only_the_chosen_degrees_of_freedom(problem):
+    radar, meshes, target = problem
+    sc = load_scene(meshes, materials={"near": "metal", "far": "glass"}, radar=radar)
+    with pytest.raises(ConfigError):
+        MMIRModel(sc, learn=("pose",), pose_dofs=("x", "tilt"))
+    model = MMIRModel(sc, learn=("pose",), solver_options=dict(OPTS, boundary=True),
+                      pose_dofs=("x", "y", "yaw"))
+    res = fit(model, target, iterations=2, lr=0.05, progress=False)
+    pos, ori = res.latents["pose.position"], res.latents["pose.orientation"]
+    assert pos[2] == 0.0 and ori[1] == 0.0 and ori[2] == 0.0
+    assert np.any(pos[:2] != 0.0) and ori[0] != 0.0

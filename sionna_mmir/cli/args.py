@@ -132,6 +132,13 @@ def add_solver(p, preset: SolverOptions, fields=("rays", "depth", "sampling", "c
         "diffraction": ("--diffraction", dict(action=argparse.BooleanOptionalAction,
                                               default=preset.diffraction,
                                               help="free-space diffraction at edges")),
+        "boundary": ("--boundary", dict(action=argparse.BooleanOptionalAction,
+                                        default=preset.boundary,
+                                        help="visibility-boundary term of the position and "
+                                             "pose gradients (needed to fit the radar pose)")),
+        "stratified": ("--stratified", dict(action=argparse.BooleanOptionalAction,
+                                            default=preset.stratified,
+                                            help="random rays from a jittered grid")),
     }
     for name in fields:
         flag, kw = spec[name]
@@ -151,7 +158,7 @@ def solver_options(args, **extra) -> SolverOptions:
 
     names = {"rays": "num_rays", "depth": "max_depth", "sampling": "sampling",
              "cone": "cone_angle_deg", "min_rel_power": "min_rel_power", "seed": "seed",
-             "diffraction": "diffraction"}
+             "diffraction": "diffraction", "boundary": "boundary", "stratified": "stratified"}
     values = {names[f]: getattr(args, f) for f in args._solver_fields}
     options = args._solver_preset.replace(**values, **extra)
     check_memory(int(options.num_rays) * BYTES_PER_RAY, f"--rays {options.num_rays}: tracing")

@@ -1,6 +1,8 @@
 """``sionna-mmir fit`` and ``sionna-mmir compare``: fit meshes to a capture.
 
-``fit``      mmIR only: per-vertex materials, normals, beam patterns
+``fit``      mmIR only: per-vertex materials, normals, beam patterns (``--learn``:
+             also vertex positions and the radar pose, e.g. ``--learn pose
+             --boundary`` fits the radar's alignment to the meshes)
 ``compare``  mmIR and the Sionna RT baseline, same loss / Adam / budget,
              Table 2 (Markdown + CSV), RA panels and loss curves
 
@@ -28,7 +30,13 @@ def add_parser(sub) -> None:
         add_pose(p)
         p.add_argument("--iterations", type=int, default=30, help="Adam steps per model")
         p.add_argument("--lr", type=float, default=0.05, help="Adam base step")
-        add_solver(p, SolverOptions.fit())
+        add_solver(p, SolverOptions.fit(), fields=("rays", "depth", "sampling", "cone",
+                                                   "min_rel_power", "seed", "boundary",
+                                                   "stratified"))
+        p.add_argument("--learn", default="materials,normals,beam",
+                       help="what mmIR learns, comma-separated, from materials, normals, "
+                            "beam, positions, pose (pose: the radar pose, an alignment fit; "
+                            "use with --boundary)")
         add_scaffold(p, "none")
         p.add_argument("--normals-smoothing", type=float, default=0.0,
                        help="lambda of the Laplacian parameterisation of the learned normals "
@@ -42,6 +50,18 @@ def add_parser(sub) -> None:
         p.set_defaults(run=run, with_sionna=name == "compare")
 
 
+def learn_list(text: str) -> tuple:
+    """``--learn`` as a tuple; unknown names raise :class:`ConfigError`."""
+    from ..errors import ConfigError
+    from ..fit.models import LEARNABLE
+
+    learn = tuple(x.strip() for x in str(text).split(",") if x.strip())
+    bad = sorted(set(learn) - set(LEARNABLE))
+    if not learn or bad:
+        raise ConfigError(f"--learn: choose from {', '.join(LEARNABLE)}, got {text!r}")
+    return learn
+
+
 def run(args) -> int:
     from ..compare.workflow import FitRequest, run_fit
 
@@ -53,6 +73,7 @@ def run(args) -> int:
                      solver=solver_options(args), scaffold=scaffold_options(args),
                      normals_smoothing=args.normals_smoothing,
                      materials_smoothing=args.materials_smoothing,
+                     learn=learn_list(args.learn),
                      with_sionna=args.with_sionna,
                      sionna_samples=getattr(args, "sionna_samples", 20_000),
                      resume=args.resume, overwrite=args.overwrite)

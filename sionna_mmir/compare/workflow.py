@@ -43,6 +43,9 @@ class FitRequest:
         mmIR solver settings (default :meth:`SolverOptions.fit`).
     scaffold : ScaffoldOptions
         Mesh repair before fitting (default none).
+    learn : tuple
+        What mmIR learns (:data:`~sionna_mmir.fit.models.LEARNABLE`; with
+        ``"pose"`` the radar pose is fitted too -- set ``solver.boundary``).
     with_sionna : bool
         Fit the Sionna RT baseline too.
     """
@@ -62,6 +65,7 @@ class FitRequest:
     scaffold: ScaffoldOptions = dataclasses.field(default_factory=ScaffoldOptions.none)
     normals_smoothing: float = 0.0
     materials_smoothing: float = 0.0
+    learn: tuple = ("materials", "normals", "beam")
     with_sionna: bool = False
     sionna_samples: int = 20_000
     resume: bool = False
@@ -122,7 +126,8 @@ def build_models(req: FitRequest, scene, radar, meshes) -> list:
     """``[(label, model)]``: mmIR, and the Sionna RT baseline for a comparison."""
     from ..fit import MMIRModel, SionnaModel
 
-    mm = MMIRModel(scene, solver_options=req.solver, normals_smoothing=req.normals_smoothing,
+    mm = MMIRModel(scene, learn=tuple(req.learn), solver_options=req.solver,
+                   normals_smoothing=req.normals_smoothing,
                    materials_smoothing=req.materials_smoothing)
     check_overlap(mm, req.capture)
     models = [("mmIR", mm)]

@@ -23,6 +23,8 @@ from . import reparam
 
 #: what :class:`MMIRModel` can learn
 LEARNABLE = ("materials", "normals", "beam", "positions", "pose")
+#: the radar pose's degrees of freedom (position, then yaw, pitch, roll)
+POSE_DOFS = ("x", "y", "z", "yaw", "pitch", "roll")
 
 
 class MMIRModel:
@@ -60,11 +62,19 @@ class MMIRModel:
         the same for the materials' latents (a spatial
         smoothness prior on the six per-vertex parameters;
         default 0)
+    pose_dofs : tuple, optional
+        with ``"pose"`` learned: which of ``("x", "y", "z",
+        "yaw", "pitch", "roll")`` move (default all).  A
+        range-azimuth map sees range and azimuth only, so
+        height, pitch and roll are barely observable from it;
+        an alignment fit to RA maps learns ``("x", "y",
+        "yaw")`` and keeps the others at their values
     """
 
     def __init__(self, scene, radar=None, *, learn=("materials", "normals", "beam"),
                  tx_pattern=None, rx_pattern=None, solver_options=None,
-                 normals_smoothing: float = 0.0, materials_smoothing: float = 0.0):
+                 normals_smoothing: float = 0.0, materials_smoothing: float = 0.0,
+                 pose_dofs: tuple = POSE_DOFS):
         from ..paths import RadarPathSolver, SolverOptions
         from ..radio_devices import CosinePowerPattern
 
@@ -76,6 +86,12 @@ class MMIRModel:
         if bad:
             raise ConfigError(f"MMIRModel: cannot learn {bad}; choose from {LEARNABLE}")
         self.learn = tuple(learn)
+        bad = sorted(set(pose_dofs) - set(POSE_DOFS))
+        if bad or not pose_dofs:
+            raise ConfigError(f"MMIRModel: pose_dofs must be a non-empty subset of {POSE_DOFS}, "
+                              f"got {tuple(pose_dofs)}")
+        #: 1 for the pose components that move (position, orientation)
+        self._pose_mask = np.array([d in pose_dofs for d in POSE_DOFS], dtype=np.float64)
         self.tx_pattern = tx_pattern or CosinePowerPattern(n_elements=self.radar.num_tx)
         self.rx_pattern = rx_pattern or CosinePowerPattern(n_elements=self.radar.num_rx)
         #: latent key -> LaplacianParam (handles are the smoothed fields, see pullback)
@@ -179,11 +195,14 @@ class MMIRModel:
     def pullback(self, grads: dict) -> dict:
         """Gradients w.r.t. the render handles -> gradients w.r.t. the latents
         (identity except for Laplacian-parameterised normals or materials:
-        ``A^-1 g``)."""
+        ``A^-1 g``, and pose components outside ``pose_dofs``: zero)."""
         out = dict(grads)
         for k, par in self._smooth.items():
             if k in out:
                 out[k] = par.pullback(out[k])
+        if "pose.position" in out:           # components held fixed get no step
+            out["pose.position"] = out["pose.position"] * self._pose_mask[:3]
+            out["pose.orientation"] = out["pose.orientation"] * self._pose_mask[3:]
         return out
 
     def apply(self, z: dict) -> None:

@@ -11,6 +11,8 @@
     continuation, diffraction, motion)
 ``assemble``
     per-element legs and factorised paths
+``boundary``
+    the visibility-boundary term of the geometry and pose gradients
 ``radar_paths``
     :class:`RadarPaths`, per (tx, rx, path) amplitudes and delays
 ``render``

@@ -73,13 +73,14 @@ def _compress(emissions):
         g = [gather3(f, idx) if i in (2, 3) else dr.gather(mi.Float, f, idx)
              for i, f in enumerate(e.fields())]
         g.append(dr.gather(mi.UInt32, e.obj, idx))
-        kept.append((g, e.depth, dr.width(idx)))
+        kept.append((g, e.depth, dr.width(idx), e.boundary))
     return kept
 
 
-def _concat(kept):
+def _concat(kept, depth0=None):
     """Concatenate the kept groups: eight fields (the seven of an emission and
-    the first-hit object), depth per path and ``P``."""
+    the first-hit object), depth per path and ``P`` (``depth0``: the depths
+    of the first group, when they are not all the same)."""
     def cat(i):
         return dr.concat([k[0][i] for k in kept]) if len(kept) > 1 else kept[0][0][i]
 
@@ -88,7 +89,8 @@ def _concat(kept):
                             else kept[0][0][i][c] for c in range(3)))
 
     fields = [cat3(i) if i in (2, 3) else cat(i) for i in range(8)]
-    depth = np.concatenate([np.full(k[2], k[1], dtype=np.int32) for k in kept])
+    depth = np.concatenate([depth0 if (i == 0 and depth0 is not None) else
+                            np.full(k[2], k[1], dtype=np.int32) for i, k in enumerate(kept)])
     return fields, depth, sum(k[2] for k in kept)
 
 
@@ -128,7 +130,8 @@ def assemble(ctx, emissions, num_candidates: int, num_hits: int, moving: bool,
     *before* the per-element legs (``[T, P]``, ``[R, P]``) are formed.
     """
     T, R = ctx.num_tx, ctx.num_rx
-    kept = _compress(emissions)
+    every = _compress(emissions)
+    kept = [k for k in every if not k[3]]
     if not kept:
         return empty_paths(T, R, num_candidates)
     fields, depth, P = _concat(kept)
@@ -137,6 +140,9 @@ def assemble(ctx, emissions, num_candidates: int, num_hits: int, moving: bool,
         keep = strongest(ctx, fields, P, min_rel_power)
         if keep.size < P:
             fields, depth, P = _select(fields, keep), depth[keep], int(keep.size)
+    extra = [k for k in every if k[3]]       # boundary paths: zero-valued, never pruned
+    if extra:
+        fields, depth, P = _concat([(fields, 0, P, False)] + extra, depth)
     C_re, C_im, X, X1, chain_t, chain, rate, obj = fields
     # per-Tx leg [T, P] and per-Rx leg [R, P]: sqrt(gain) / leg length, and lengths
     g_t, dt = element_legs(ctx.tx_w, X, chain_t, ctx.ptx, ctx.pose, T, P)

@@ -63,6 +63,21 @@ class Candidates:
         return dr.width(self.pdf)
 
 
+def jittered_grid(u1, u2, N: int):
+    """Uniforms ``u1, u2`` (width ``N``) moved into the cells of an ``n x n``
+    grid, ``n = floor(sqrt(N))`` (the last ``N - n^2`` stay uniform): every
+    cell holds one point, uniform inside it (stratified sampling)."""
+    n = int(math.isqrt(N))
+    i = dr.arange(mi.UInt32, N)
+    nn = dr.opaque(mi.UInt32, n)                 # a literal would recompile per ray count
+    row = i // nn
+    col = i - row * nn
+    inv = dr.opaque(mi.Float, 1.0 / n)
+    grid = i < nn * nn
+    return (dr.select(grid, (mi.Float(col) + u1) * inv, u1),
+            dr.select(grid, (mi.Float(row) + u2) * inv, u2))
+
+
 def cone_directions(u1, u2, cone_angle):
     """Cosine-weighted directions in a cone about ``+z``.
 
@@ -99,6 +114,7 @@ class RandomCone:
         self.num_rays = int(options.num_rays)
         self.cone_angle = math.radians(float(options.cone_angle_deg))
         self.seed = int(options.seed)
+        self.stratified = bool(options.stratified)
 
     def estimator_count(self, num_candidates: int) -> int:
         """The ``N`` an estimate is divided by."""
@@ -112,6 +128,8 @@ class RandomCone:
         # seed (every fit iteration) would recompile them (~1 s per iteration)
         sampler = mi.PCG32(size=N, initstate=dr.opaque(mi.UInt64, self.seed))
         u1, u2 = sampler.next_float32(), sampler.next_float32()
+        if self.stratified:
+            u1, u2 = jittered_grid(u1, u2, N)
         local, pdf = cone_directions(u1, u2, self.cone_angle)
         d_radar = mi.Vector3f(local.z, local.x, local.y)        # +z_local -> boresight +x
         with dr.suspend_grad():

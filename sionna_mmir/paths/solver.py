@@ -26,6 +26,9 @@ call runs the transport stages of :mod:`.transport` in order:
 5. continuation -- mirror or BSDF sample (or FSD diffraction), roulette,
    the next segment;
 
+with ``options.boundary`` the visibility-boundary term of the geometry and
+pose gradients is added as zero-valued paths (:mod:`.boundary`);
+
 and :mod:`.assemble` forms the per-element legs (MIMO ray reuse: every
 Tx-Rx pair gets its own exact delay).  The Rayleigh factor ``eta`` splits
 the reflected energy between the coherent and the scattered part (our
@@ -44,9 +47,9 @@ from ..errors import ConfigError, InputValueError
 from ..radio_materials.fresnel import SPEED_OF_LIGHT
 from ..utils.backend import init_backend
 from .assemble import assemble, empty_paths
+from .boundary import boundary_emissions
 from .geometry import SceneGeometry, Tape
 from .options import SolverOptions
-from .polarization import Field, transverse
 from .pose import Pose
 from .radar_paths import RadarPaths
 from .sampling import make_sampler
@@ -54,7 +57,7 @@ from .transport import aperture, coherent, continuation, motion, scattered, spec
 from .transport.connection import connect
 from .transport.diffraction import fsd_setup
 from .transport.fsd_coherent import boundary_edges, fsd_emission
-from .transport.state import Emission, PathState, SolverContext, zeros
+from .transport.state import Emission, PathState, SolverContext, start_state, zeros
 from .transport.surface import at_surface
 
 init_backend()
@@ -119,6 +122,8 @@ class RadarPathSolver(PathSolver):
             if depth == opts.max_depth:
                 break
             continuation.continue_paths(ctx, st, surf, depth)
+        if opts.boundary and samples is None:       # frozen samples: no visibility change
+            emissions += boundary_emissions(ctx, int(opts.seed))
         moving = opts.velocities is not None or opts.radar_velocity is not None
         paths = assemble(ctx, emissions, N, K, moving, object_names=ctx.geo.names)
         paths.samples = samples if samples is not None else (ctx.geo.record, ctx.tape.values)
@@ -173,7 +178,7 @@ class RadarPathSolver(PathSolver):
             ctx.fsd_edges = boundary_edges(geo)
         it = geo.interaction(dr.full(mi.Bool, True, K), obj, face, u, v, tape)
         sub = ctx.sampler.first_triangle(it, cands, keep)
-        st = _start_state(ctx, it, pdf, sub)
+        st = start_state(ctx, it, pdf, sub)
         st.aperture = ctx.sampler.aperture(ctx.options, keep, face, it.tri, sub)
         return st
 
@@ -206,23 +211,6 @@ class RadarPathSolver(PathSolver):
         if opts.scattering and opts.reciprocal and depth > 1:
             out.append(scattered.reciprocal_emission(st, surf, conn, sc_re, sc_im, depth))
         return out
-
-
-def _start_state(ctx, it, pdf, tri1) -> PathState:
-    """The path state at the first interaction (width ``K``; ``tri1`` the
-    region the first interaction integrates over)."""
-    K = dr.width(pdf)
-    x1 = it.p
-    cw_k = dr.zeros(mi.Point3f, K) + ctx.c_w
-    k0 = dr.normalize(x1 - cw_k)
-    L0_det = ctx.tape.freeze(dr.norm(x1 - cw_k))
-    e_r = ctx.pose.to_scene(ctx.prx.polarization(ctx.pose.to_radar(k0)))
-    eye = [mi.Vector3f(1.0, 0.0, 0.0), mi.Vector3f(0.0, 1.0, 0.0), mi.Vector3f(0.0, 0.0, 1.0)]
-    return PathState(it=it, E=Field(transverse(e_r, k0)), inv_p=dr.ones(mi.Float, K),
-                     coh=dr.full(mi.Bool, True, K), beta=zeros(K), p_area=zeros(K),
-                     chain=zeros(K), prev_p=cw_k, rate_chain=zeros(K), first_pdf=pdf, x1=x1,
-                     k0=k0, L0_det=L0_det, cw_k=cw_k, tri1=tri1,
-                     U=(eye, mi.Vector3f(0.0, 0.0, 0.0)), x_star=x1, obj1=it.obj)
 
 
 def _pattern(spec):

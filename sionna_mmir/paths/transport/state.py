@@ -18,6 +18,8 @@ init_backend()
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
+from ..polarization import Field, transverse  # noqa: E402
+
 #: offset of secondary ray origins along the geometric normal [m]
 RAY_EPSILON = 1e-4
 
@@ -259,6 +261,8 @@ class Emission:
         Lanes that contribute.
     obj : mi.UInt32
         Object of each path's first interaction (receiver side).
+    boundary : bool
+        Paths of the boundary term (zero amplitude; never pruned).
     """
 
     c_re: object
@@ -271,6 +275,7 @@ class Emission:
     depth: int
     mask: object
     obj: object = None
+    boundary: bool = False
 
     def fields(self) -> tuple:
         """The seven per-lane arrays, in the assembly's order."""
@@ -283,5 +288,23 @@ def zeros(width: int):
     return dr.zeros(mi.Float, width)
 
 
+def start_state(ctx, it, pdf, tri1) -> PathState:
+    """The path state at the first interaction ``it`` (width ``K``): ``pdf``
+    the density of the first direction [1/sr], ``tri1`` the region the first
+    interaction integrates over."""
+    K = dr.width(pdf)
+    x1 = it.p
+    cw_k = dr.zeros(mi.Point3f, K) + ctx.c_w
+    k0 = dr.normalize(x1 - cw_k)
+    L0_det = ctx.tape.freeze(dr.norm(x1 - cw_k))
+    e_r = ctx.pose.to_scene(ctx.prx.polarization(ctx.pose.to_radar(k0)))
+    eye = [mi.Vector3f(1.0, 0.0, 0.0), mi.Vector3f(0.0, 1.0, 0.0), mi.Vector3f(0.0, 0.0, 1.0)]
+    return PathState(it=it, E=Field(transverse(e_r, k0)), inv_p=dr.ones(mi.Float, K),
+                     coh=dr.full(mi.Bool, True, K), beta=zeros(K), p_area=zeros(K),
+                     chain=zeros(K), prev_p=cw_k, rate_chain=zeros(K), first_pdf=pdf, x1=x1,
+                     k0=k0, L0_det=L0_det, cw_k=cw_k, tri1=tri1,
+                     U=(eye, mi.Vector3f(0.0, 0.0, 0.0)), x_star=x1, obj1=it.obj)
+
+
 __all__ = ["RAY_EPSILON", "SolverContext", "PathState", "Surface", "Connection", "Emission",
-           "zeros"]
+           "zeros", "start_state"]
