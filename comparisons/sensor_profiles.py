@@ -57,7 +57,7 @@ def _ceiling(cap_b, cap_a, bins=8):
     return pearson(ra, range_azimuth(m, cap_b.radar)[0]), residual_db(cap_b.adc, m)
 
 
-def evaluate(cap_b, profile, iterations):
+def evaluate(cap_b, profile, iterations, sionna_samples):
     """Rows for capture B with ``profile`` (or None)."""
     from sionna_mmir.compare.corner_scene import fit_corner_scene
     from sionna_mmir.effects.sensor_calibration import fit_scene
@@ -81,7 +81,8 @@ def evaluate(cap_b, profile, iterations):
         r0, az0, _ = find_target(cap_b.adc, radar)
         r, az_deg = refine_point_target(cap_b.adc, radar, r0, np.degrees(az0), centre)
     sides = fit_corner_scene(cap_b, ra, r, np.radians(az_deg), centre, iterations=iterations,
-                             progress=False, sensor_profile=profile)
+                             progress=False, sensor_profile=profile,
+                             sionna_samples=sionna_samples)
     models = {}
     for label, side in sides.items():
         rows.append({"model": label, "ra_before": side.metrics_before["ra_correlation"],
@@ -99,6 +100,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--iterations", type=int, default=10)
     p.add_argument("--out", default=HERE)
+    p.add_argument("--sionna-samples", type=int, default=50_000,
+                   help="Sionna RT samples per source and iteration (memory)")
     args = p.parse_args(argv)
     measured = find_measured_dir()
     if measured is None:
@@ -107,9 +110,9 @@ def main(argv=None) -> int:
     caps = {n: load_capture(measured / "mmwcas_corner" / n) for n in CAPTURES}
     out = []
     for a, b in (CAPTURES, CAPTURES[::-1]):
-        profile = calibrate_profile([caps[a]])
+        profile = calibrate_profile([caps[a]], names=[a])
         for prof, label in ((None, "none"), (profile, a.split("_slope")[0])):
-            rows, _ = evaluate(caps[b], prof, args.iterations)
+            rows, _ = evaluate(caps[b], prof, args.iterations, args.sionna_samples)
             for row in rows:
                 row.update(capture=b.split("_slope")[0], profile=label)
                 out.append(row)

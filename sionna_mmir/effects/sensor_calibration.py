@@ -80,7 +80,7 @@ class _Capture:
         self.tau = tau[..., 0]                                             # [T, R]
         self.s = 1.0 + 0j
         self.a = None
-        self.steer = np.zeros(2)           # phase-only plane wave: the target's direction
+        self.steer = np.zeros(2)           # phase ramps: the path's directions (see _steering)
 
     @property
     def bin_delay(self) -> float:
@@ -117,28 +117,44 @@ def _channel_delays(caps, leak, leak_delays, delay, span_bins=1.5, steps=61):
     return num / np.maximum(den, 1e-30)
 
 
-def _steering(g, radar, span: float = 1.0, steps: int = 401) -> np.ndarray:
-    """Direction cosines ``(u_y, 0)`` of the plane wave that best fits ``g``'s phase
-    across the virtual aperture's azimuth (searched within ``+-span``, then refined).
-
-    Elevation is left alone: the few elevated Tx of a cascade alias in
-    elevation, so a fitted elevation would not be unique; targets are taken
-    at elevation 0 and the elevated Tx's phases stay in the profile.
-    """
-    k = 2 * np.pi * radar.center_frequency / SPEED_OF_LIGHT
-    y = radar.virtual_positions()[..., 1]                                 # [T, R]
+def _ramp(g, y, k, span, steps) -> float:
+    """Direction cosine ``u`` maximising ``|sum g exp(-j k u y)|`` (``y`` [m], broadcast to ``g``)."""
     best = 0.0
     for width in (span, 2 * span / (steps - 1)):
         u = best + np.linspace(-width, width, steps)
-        ph = np.exp(-1j * k * np.multiply.outer(u, y))                    # [U, T, R]
+        ph = np.exp(-1j * k * np.multiply.outer(u, np.broadcast_to(y, g.shape)))
         best = u[np.argmax(np.abs(np.sum(ph * g, axis=(1, 2))))]
-    return np.array([best, 0.0])
+    return float(best)
+
+
+def _steering(g, radar, span: float = 1.0, steps: int = 401, rx: bool = False) -> np.ndarray:
+    """``(u, u_rx)``: the plane-wave phase ramps that best fit ``g`` across the aperture.
+
+    ``u`` is the path's direction (a ramp over the virtual positions'
+    azimuth); with ``rx``, ``u_rx`` is an extra ramp over the Rx positions
+    only (else 0): a path that arrives from another direction than it left
+    (a multipath via a wall).  Both belong to the scene.  The calibration
+    fixes only ``u`` (the pair is not unique: the Tx positions of a cascade
+    are 4 lambda/2 apart, so a Tx-side ramp aliases); the scene fit under a
+    frozen profile fits both.  Elevation
+    is left alone: the few elevated Tx of a cascade alias in elevation, so a
+    fitted elevation would not be unique; targets are taken at elevation 0.
+    """
+    k = 2 * np.pi * radar.center_frequency / SPEED_OF_LIGHT
+    yv = radar.virtual_positions()[..., 1]                                # [T, R]
+    yr = np.asarray(radar.rx_positions)[None, :, 1]                       # [1, R]
+    u = np.zeros(2)
+    for _ in range(2 if rx else 1):
+        u[0] = _ramp(g * np.exp(-1j * k * u[1] * yr), yv, k, span, steps)
+        if rx:
+            u[1] = _ramp(g * np.exp(-1j * k * u[0] * yv), yr, k, span, steps)
+    return u
 
 
 def _plane_delay(radar, u) -> np.ndarray:
-    """Per-channel delay ``[T, R]`` [s] of a plane wave with direction cosines ``u``."""
-    pos = radar.virtual_positions()
-    return (u[0] * pos[..., 1] + u[1] * pos[..., 2]) / SPEED_OF_LIGHT
+    """Per-channel delay ``[T, R]`` [s] of the ramps ``u = (u, u_rx)`` of :func:`_steering`."""
+    return (u[0] * radar.virtual_positions()[..., 1]
+            + u[1] * np.asarray(radar.rx_positions)[None, :, 1]) / SPEED_OF_LIGHT
 
 
 def _no_plane(delay, caps) -> np.ndarray:
@@ -260,11 +276,13 @@ def not_fitted() -> list:
     return sorted(n for n, cls in LIBRARY.items() if cls.per_unit and n not in FITTED)
 
 
-def fit_scene(cap, profile, *, rounds: int = 3, r_min: float = 1.0) -> dict:
+def fit_scene(cap, profile, *, rounds: int = 3, r_min: float = 1.0,
+              bistatic: bool = True) -> dict:
     """Fit a capture's point-target scene under a frozen profile (the unit is not refitted).
 
-    The target's range, direction (a plane-wave phase over the aperture) and
-    complex amplitude are fitted; the profile's gains, delays and leakage are
+    The target's range, direction (a plane-wave phase over the aperture;
+    with ``bistatic`` also a separate arrival direction at the Rx, see
+    :func:`_steering`) and complex amplitude are fitted; the profile's gains, delays and leakage are
     applied as they are (:meth:`SensorProfile.apply`).
 
     Returns
@@ -280,14 +298,19 @@ def fit_scene(cap, profile, *, rounds: int = 3, r_min: float = 1.0) -> dict:
     leak = profile.leakage(radar)
     e = c.y - leak
     shifts = np.linspace(-1.5, 1.5, 61) * c.bin_delay
-    for _ in range(int(rounds)):
+
+    def steer():
         base = c.target(profile.delay) * profile.gain[..., None]
         a = np.sum(e * np.conj(base), axis=-1) / np.sum(np.abs(base) ** 2, axis=-1)
-        c.steer = c.steer + _steering(a * np.abs(profile.gain) ** 2, radar)
+        c.steer = c.steer + _steering(a * np.abs(profile.gain) ** 2, radar, rx=bistatic)
+
+    for _ in range(int(rounds)):
+        steer()
         base = c.target(profile.delay) * profile.gain[..., None]
         score = np.abs(np.einsum("trn,gn->g", e * np.conj(base),
                                  np.exp(-2j * np.pi * np.multiply.outer(shifts, c.f)))) ** 2
         c.tau = c.tau + shifts[int(np.argmax(score))]
+    steer()
     unit = c.target(profile.delay)
     hx = profile.gain[..., None] * unit
     s = complex(np.vdot(hx, e) / np.vdot(hx, hx))
