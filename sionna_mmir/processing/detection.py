@@ -120,7 +120,7 @@ def classify_peaks(adc, radar, r_min: float = 1.0, r_max: float | None = None,
         raise InputValueError(f"classify_peaks: adc must be [T, R, C, N] or [F, T, R, C, N], "
                               f"got shape {x.shape}")
     spec, ranges = range_fft(x, radar, "hann")                           # [F, T, R, C, K]
-    half = len(ranges) // 2
+    half = len(ranges)                      # complex IF: every bin is a positive beat frequency
     mean = spec.mean(axis=(0, 3))                                       # [T, R, K] coherent
     power = np.mean(np.abs(mean) ** 2, axis=(0, 1))                     # [K]
     r_max = ranges[half - 1] if r_max is None else min(float(r_max), ranges[half - 1])
