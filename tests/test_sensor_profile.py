@@ -258,3 +258,29 @@ def test_old_ti_file_without_sample_rate(capsys, tmp_path):
     assert main(["info", str(path), "--waveform-config", str(cfg)]) == 0
     assert main(["info", str(path), "--sample-rate", "4e6", "--slope", "60"]) == EXIT_BAD_INPUT
     assert "Slope_MHzperus" in _err(capsys)
+
+
+def test_frozen_profile_in_the_effect_chain(radar, profile):
+    """The loop's sensor chain with a profile: the nuisance gain alone fits a capture
+    made by the profile (the profile is applied, not fitted)."""
+    from sionna_mmir.effects import EffectContext, EffectModel
+    from sionna_mmir.effects.profile import frozen_profile_effect
+
+    x = synthesize_adc(radar, np.ones((12, 16, 1)), np.full((12, 16, 1), 2 * 5.0 / C))[None]
+    cap = Capture(profile.apply(x, radar, 0.7 - 0.2j).astype(np.complex64), radar, {})
+    chain = EffectModel(EffectContext.from_capture(cap), cap.frames, base=x)
+    chain.add(frozen_profile_effect(profile, radar, chain.scale))
+    assert chain.components[-1].specs == {}
+    chain.fit(trainable=[], maxiter=100)
+    assert residual_db(cap.frames, chain.mean_adc()) < -40
+
+
+def test_calibrate_refuses_two_radars(capsys, tmp_path, radar, unit):
+    a, b = tmp_path / "a.h5", tmp_path / "b.h5"
+    _capture(radar, unit, [(4.0, 5.0)]).save(a)
+    other = RadarConfig.awr1843(num_chirps=1)
+    rng = np.random.default_rng(0)
+    Capture((rng.normal(size=(1, *other.adc_shape)) + 0j).astype(np.complex64), other, {}).save(b)
+    out = tmp_path / "p.h5"
+    assert main(["calibrate", str(a), str(b), "--out", str(out)]) == EXIT_BAD_INPUT
+    assert "not the same radar" in _err(capsys) and not out.exists()

@@ -125,7 +125,9 @@ def classify_peaks(adc, radar, r_min: float = 1.0, r_max: float | None = None,
     power = np.mean(np.abs(mean) ** 2, axis=(0, 1))                     # [K]
     r_max = ranges[half - 1] if r_max is None else min(float(r_max), ranges[half - 1])
     lo = int(np.searchsorted(ranges, search_start(radar, r_min)))
-    hi = int(np.searchsorted(ranges, r_max, side="right"))
+    wrap = int(np.ceil(search_start(radar, 0.0) / radar.range_resolution))
+    # the leakage's negative-frequency side wraps to the top of the complex-IF band
+    hi = min(int(np.searchsorted(ranges, r_max, side="right")), half - wrap)
     peaks = _local_peaks(power, lo, hi, count)
     comb = _comb_members(_local_peaks(power, 1, half, 3 * count), power)
     mags = np.abs(spec).reshape(-1, *spec.shape[1:3], spec.shape[-1])   # [F*C, T, R, K]
