@@ -34,6 +34,8 @@ def _residual(side, model, cap, profile):
 
     inner = getattr(model, "model", model)
     x = to_numpy(inner.render(side.extra["latents"], seed=9001)[0])
+    if getattr(model, "arrival", None) is not None:
+        x = x * model.arrival[:, :, None, None]
     d = cap.adc
     if profile is None:
         s = np.vdot(x, d) / max(np.vdot(x, x).real, 1e-30)
@@ -75,13 +77,14 @@ def evaluate(cap_b, profile, iterations, sionna_samples):
         rows.append({"model": "point target (NumPy)", "ra_before": None,
                      "ra_after": pearson(ra, range_azimuth(f["model"][:, :, None], radar)[0]),
                      "residual_db": f["residual_db"]})
-        r, az_deg, centre = f["range_m"], f["azimuth_deg"], f["origin"]
+        r, az_deg, centre, arrival = f["range_m"], f["azimuth_deg"], f["origin"], f["arrival"]
     else:
         centre = VirtualArray(radar).phase_centre()
         r0, az0, _ = find_target(cap_b.adc, radar)
         r, az_deg = refine_point_target(cap_b.adc, radar, r0, np.degrees(az0), centre)
+        arrival = None
     sides = fit_corner_scene(cap_b, ra, r, np.radians(az_deg), centre, iterations=iterations,
-                             progress=False, sensor_profile=profile,
+                             progress=False, sensor_profile=profile, arrival=arrival,
                              sionna_samples=sionna_samples)
     models = {}
     for label, side in sides.items():

@@ -75,11 +75,13 @@ def corner_cone_deg(azimuth_rad: float) -> float:
 
 
 def fit_corner_scene(cap, ra_meas, r_corner, az_corner, origin, *, iterations=8, rays=6000,
-                     sionna_samples=200_000, progress=True, sensor_profile=None) -> dict:
+                     sionna_samples=200_000, progress=True, sensor_profile=None,
+                     arrival=None) -> dict:
     """Fit the corner scene with mmIR and the Sionna RT baseline, like for like.
 
     ``sensor_profile`` (a :class:`~sionna_mmir.effects.profile.SensorProfile`)
-    is applied frozen to both models' renders (:class:`~sionna_mmir.fit.profiled.ProfiledModel`).
+    is applied frozen to both models' renders (:class:`~sionna_mmir.fit.profiled.ProfiledModel`),
+    with the scene's Rx-side ``arrival`` ramp when given.
 
     Returns the :func:`~sionna_mmir.compare.harness.run_sides` results
     (``{"mmIR": SideResult, "Sionna RT": SideResult}``).
@@ -99,6 +101,6 @@ def fit_corner_scene(cap, ra_meas, r_corner, az_corner, origin, *, iterations=8,
     if sensor_profile is not None:
         from ..fit.profiled import ProfiledModel
 
-        mm, sio = (ProfiledModel(m, sensor_profile, cap.adc) for m in (mm, sio))
+        mm, sio = (ProfiledModel(m, sensor_profile, cap.adc, arrival=arrival) for m in (mm, sio))
     return run_sides((("mmIR", mm), ("Sionna RT", sio)), ra_meas, cap.adc,
                      iterations=iterations, lr=0.05, progress=progress)

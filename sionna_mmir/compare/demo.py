@@ -136,16 +136,17 @@ def run_demo(capture=None, out="sionna_mmir_demo", overwrite=False, fit_iteratio
     if fit_iterations > 0:
         from .corner_scene import fit_corner_scene
 
-        r_fit, az_fit = r_corner, az_corner
+        r_fit, az_fit, arrival = r_corner, az_corner, None
         if profile is not None:
             from ..effects.sensor_calibration import fit_scene
 
             placed = fit_scene(cap, profile)
             r_fit, az_fit = placed["range_m"], np.radians(placed["azimuth_deg"])
+            arrival, centre = placed["arrival"], placed["origin"]
         sides = fit_corner_scene(cap, ra_meas, r_fit, az_fit, centre,
                                  iterations=fit_iterations, rays=fit_rays,
                                  sionna_samples=sionna_samples, progress=progress,
-                                 sensor_profile=profile)
+                                 sensor_profile=profile, arrival=arrival)
     summary = {
         "capture": str(cap.source), "note": note,
         "radar": radar.name, "corner_range_m": r_corner,

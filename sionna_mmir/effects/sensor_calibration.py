@@ -290,7 +290,10 @@ def fit_scene(cap, profile, *, rounds: int = 3, r_min: float = 1.0,
     dict
         ``scene`` (the unit-free point target, ``[T, R, N]``), ``model`` (scene
         with the profile, ``[T, R, N]``), ``data`` (chirp-averaged capture),
-        ``scale``, ``range_m``, ``residual_db``.
+        ``scale``, ``range_m``, ``azimuth_deg``, ``origin`` (where range and
+        azimuth are measured from), ``arrival`` (the Rx-side arrival ramp,
+        complex ``[T, R]``: a scene property a mesh placed at ``range_m`` /
+        ``azimuth_deg`` does not produce), ``residual_db``.
     """
     profile.check_radar(cap.radar, str(cap.source))
     c = _Capture(cap, r_min)
@@ -316,9 +319,10 @@ def fit_scene(cap, profile, *, rounds: int = 3, r_min: float = 1.0,
     s = complex(np.vdot(hx, e) / np.vdot(hx, hx))
     model = s * hx + leak
     az = np.degrees(np.arcsin(np.clip(np.sin(np.radians(c.az_deg)) + c.steer[0], -1, 1)))
+    arrival = np.exp(2j * np.pi * radar.center_frequency * _plane_delay(radar, [0.0, c.steer[1]]))
     return {"scene": s * unit, "model": model, "data": c.y, "scale": s,
             "range_m": float(np.mean(c.tau) * SPEED_OF_LIGHT / 2), "azimuth_deg": float(az),
-            "origin": c.centre,
+            "origin": c.centre, "arrival": arrival,
             "residual_db": residual_db(c.y, model)}
 
 

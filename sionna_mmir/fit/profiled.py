@@ -31,18 +31,27 @@ class ProfiledModel:
         The capture's ADC ``[T, R, C, N]`` (sets the scene scale).
     seed : int
         Sample set of the render that sets the scale.
+    arrival : numpy.ndarray, optional
+        complex ``[T, R]`` factor of the capture's scene the meshes do not
+        produce (the Rx-side arrival ramp of
+        :func:`~sionna_mmir.effects.sensor_calibration.fit_scene`), held fixed.
     """
 
-    def __init__(self, model, profile, data, seed: int = 12345):
+    def __init__(self, model, profile, data, seed: int = 12345, arrival=None):
         from ..paths.render import to_numpy
 
         profile.check_radar(model.radar, "sensor profile")
         self.model = model
         self.profile = profile
+        self.arrival = None if arrival is None else np.asarray(arrival)
         x = to_numpy(model.render(model.latents(), seed=seed)[0])
+        if arrival is not None:
+            x = x * np.asarray(arrival)[:, :, None, None]
         self.scale = profile.scene_scale(x, data, model.radar)
         shape = x.shape
         g = self.scale * profile.channel_response(model.radar)[:, :, None, :]
+        if arrival is not None:
+            g = g * np.asarray(arrival)[:, :, None, None]
         leak = profile.leakage(model.radar)[:, :, None, :]
         self._g = np.broadcast_to(g, shape)
         self._leak = np.broadcast_to(leak, shape)
