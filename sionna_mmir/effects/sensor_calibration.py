@@ -318,7 +318,8 @@ def fit_scene(cap, profile, *, rounds: int = 3, r_min: float = 1.0,
     hx = profile.gain[..., None] * unit
     s = complex(np.vdot(hx, e) / np.vdot(hx, hx))
     model = s * hx + leak
-    az = np.degrees(np.arcsin(np.clip(np.sin(np.radians(c.az_deg)) + c.steer[0], -1, 1)))
+    # a target at +az is nearer the +y elements: its delays fall as -sin(az) y / c
+    az = np.degrees(np.arcsin(np.clip(np.sin(np.radians(c.az_deg)) - c.steer[0], -1, 1)))
     arrival = np.exp(2j * np.pi * radar.center_frequency * _plane_delay(radar, [0.0, c.steer[1]]))
     return {"scene": s * unit, "model": model, "data": c.y, "scale": s,
             "range_m": float(np.mean(c.tau) * SPEED_OF_LIGHT / 2), "azimuth_deg": float(az),
