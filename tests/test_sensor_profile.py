@@ -284,3 +284,19 @@ def test_calibrate_refuses_two_radars(capsys, tmp_path, radar, unit):
     out = tmp_path / "p.h5"
     assert main(["calibrate", str(a), str(b), "--out", str(out)]) == EXIT_BAD_INPUT
     assert "not the same radar" in _err(capsys) and not out.exists()
+
+
+def test_detection_rejects_a_comb_that_comes_and_goes(unit):
+    """A comb present in some chirps only (another radar's chirps), with a phase of
+    its own in every channel: comb + not persistent is interference."""
+    radar = RadarConfig.mmwcas(num_chirps=8)
+    one = _capture(RadarConfig.mmwcas(num_chirps=1), unit, [(5.2, -6.0)], noise=1e-2)
+    adc = np.repeat(one.adc, 8, axis=2)
+    rng = np.random.default_rng(4)
+    n = np.arange(radar.num_samples)
+    comb = sum(np.exp(2j * np.pi * k * n / radar.num_samples) for k in (50, 70, 90, 110))
+    on = np.array([4.0, 0, 0, 4.0, 0, 0, 0, 4.0])[None, None, :, None]
+    phase = np.exp(2j * np.pi * rng.uniform(size=(12, 16, 8, 1)))
+    r, _, peaks = find_target(adc + on * phase * comb, radar)
+    assert abs(r - 5.2) < 0.1
+    assert all(p["transient"] for p in peaks if p["interference"])
