@@ -232,7 +232,7 @@ def test_calibrate_command(capsys, tmp_path, radar, unit):
     a = tmp_path / "a.h5"
     _capture(radar, unit, [(4.0, 5.0)]).save(a)
     out = tmp_path / "unit.h5"
-    assert main(["calibrate", str(a), "--out", str(out)]) == 0
+    assert main(["calibrate", str(a), "--out", str(out), "--rounds", "1"]) == 0
     assert load_profile(out).sources == (str(a),)
     assert main(["calibrate", str(a), "--out", str(out)]) == EXIT_BAD_INPUT      # no overwrite
     assert "exists" in _err(capsys)
