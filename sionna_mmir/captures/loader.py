@@ -92,7 +92,7 @@ def _select(cap: Capture, frame, path) -> Capture:
 
 
 def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = None,
-                 calib_dir=None, sensor: str = "cascade") -> Capture:
+                 calib_dir=None, sensor: str = "cascade", waveform: dict | None = None) -> Capture:
     """Load a capture from ``path`` (see the module table for the dispatch).
 
     Parameters
@@ -110,6 +110,10 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
         ColoRadar ``calib`` folder.
     sensor : {"cascade", "single_chip"}, optional
         ColoRadar sensor.
+    waveform : dict, optional
+        ``sample_rate`` [sps] / ``slope`` [Hz/s] for files that lack them
+        (older TI calibration files, :func:`~.ti_mat.read_ti_mat`); see
+        :func:`read_waveform_config`.
 
     Returns
     -------
@@ -142,7 +146,7 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
     elif kind == "mat":
         from .ti_mat import read_ti_mat
 
-        cap = read_ti_mat(p)
+        cap = read_ti_mat(p, **(waveform or {}))
     elif kind == "npy":
         from .openradar import read_openradar_npy
 
@@ -158,3 +162,35 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
 
         cap = read_dca1000(p, radar=radar)
     return _select(cap, frame, os.fspath(p))
+
+
+#: waveform-config keys -> (``load_capture`` ``waveform`` key, factor to SI)
+WAVEFORM_CONFIG_KEYS = {"sample_rate": ("sample_rate", 1.0),
+                        "adc_sample_frequency": ("sample_rate", 1.0),
+                        "slope_mhz_per_us": ("slope", 1e12),
+                        "frequency_slope": ("slope", 1.0)}
+
+
+def read_waveform_config(path) -> dict:
+    """Waveform values from a ``key value`` text file (ColoRadar's ``waveform_cfg.txt``
+    style; ``#`` starts a comment): ``sample_rate`` or ``adc_sample_frequency`` [sps],
+    ``slope_mhz_per_us`` [MHz/us] or ``frequency_slope`` [Hz/s].  Other keys are
+    ignored.  Returns the ``waveform`` dict of :func:`load_capture`."""
+    import math
+
+    path = os.fspath(path)
+    out = {}
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for n, line in enumerate(f, 1):
+            words = line.split("#", 1)[0].split()
+            if not words or words[0].lower() not in WAVEFORM_CONFIG_KEYS:
+                continue
+            key, factor = WAVEFORM_CONFIG_KEYS[words[0].lower()]
+            try:
+                val = float(words[1]) * factor
+            except (IndexError, ValueError):
+                val = float("nan")
+            if not (math.isfinite(val) and val > 0):
+                raise CaptureFormatError(f"{path}: line {n}: {words[0]} needs a positive number")
+            out[key] = val
+    return out

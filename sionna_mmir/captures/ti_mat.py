@@ -170,8 +170,28 @@ def _extras(path, cr: dict) -> dict:
     return extras
 
 
-def read_ti_mat(path) -> Capture:
+def _waveform_value(path, params, key, given, scale, flag):
+    """``params.key`` x ``scale``, or ``given`` where the file lacks it (older TI files);
+    both present and different is an error (which one is right is unknown)."""
+    if key not in params:
+        if given is None:
+            raise CaptureFormatError(f"{path}: params.{key} missing (an older TI calibration "
+                                     f"file?); give the value with {flag} or a waveform "
+                                     f"config file (--waveform-config)")
+        return float(given)
+    val = _scalar(path, params, key) * scale
+    if given is not None and abs(float(given) - val) > 1e-6 * abs(val):
+        raise CaptureFormatError(f"{path}: params.{key} is {val:.9g} in the file, {flag} gives "
+                                 f"{float(given):.9g}; leave {flag} out or fix the file")
+    return val
+
+
+def read_ti_mat(path, *, sample_rate: float | None = None, slope: float | None = None) -> Capture:
     """Read a TI MMWCAS calibration ``.mat`` file.
+
+    ``sample_rate`` [sps] and ``slope`` [Hz/s] stand in for
+    ``params.Sampling_Rate_sps`` / ``params.Slope_MHzperus`` where an older
+    file lacks them (a value that contradicts the file is an error).
 
     Re-indexing: the file's Tx axis (``Rx_fft`` axis 2 and the first axis of
     ``RangeMat``/``PeakValMat``/``AngleMat``) is the enable order 12..1; it is
@@ -233,8 +253,8 @@ def read_ti_mat(path) -> Capture:
     except ValueError as e:
         raise CaptureFormatError(f"{path}: calibResult.Rx_fft {e}") from None
 
-    slope = _scalar(path, params, "Slope_MHzperus") * 1e12
-    fs = _scalar(path, params, "Sampling_Rate_sps")
+    slope = _waveform_value(path, params, "Slope_MHzperus", slope, 1e12, "--slope")
+    fs = _waveform_value(path, params, "Sampling_Rate_sps", sample_rate, 1.0, "--sample-rate")
     radar = RadarConfig.mmwcas(num_chirps=1, slope=slope, sample_rate=fs, num_samples=n)
 
     extras = _extras(path, cr)

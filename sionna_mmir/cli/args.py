@@ -44,6 +44,43 @@ def add_capture(p, frame: bool = True) -> None:
                    help="ColoRadar calib folder (default: found beside the run)")
     p.add_argument("--sensor", default="cascade", choices=["cascade", "single_chip"],
                    help="ColoRadar sensor")
+    add_waveform(p)
+
+
+def add_waveform(p) -> None:
+    """``--sample-rate``, ``--slope`` and ``--waveform-config``: waveform values a
+    capture file lacks (older TI calibration files)."""
+    p.add_argument("--sample-rate", type=float, default=None, metavar="SPS",
+                   help="ADC sample rate [samples/s] where the capture file lacks it")
+    p.add_argument("--slope", type=float, default=None, metavar="MHZ_PER_US",
+                   help="chirp slope [MHz/us] where the capture file lacks it")
+    p.add_argument("--waveform-config", default=None, metavar="FILE",
+                   help="'key value' file with sample_rate / adc_sample_frequency [sps] and "
+                        "slope_mhz_per_us [MHz/us] / frequency_slope [Hz/s]")
+
+
+def waveform(args) -> dict:
+    """The ``load_capture(waveform=...)`` values of :func:`add_waveform`'s arguments
+    (the command line wins over the config file)."""
+    from ..captures.loader import read_waveform_config
+
+    out = {}
+    if getattr(args, "waveform_config", None):
+        out.update(read_waveform_config(args.waveform_config))
+    for flag, key, factor in (("sample_rate", "sample_rate", 1.0), ("slope", "slope", 1e12)):
+        v = getattr(args, flag, None)
+        if v is not None:
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"--{flag.replace('_', '-')} {v}: expected a positive number")
+            out[key] = float(v) * factor
+    return out
+
+
+def add_sensor_profile(p) -> None:
+    """``--sensor-profile PROFILE.h5``: a unit's calibrated effects, applied frozen."""
+    p.add_argument("--sensor-profile", default=None, metavar="PROFILE.h5",
+                   help="sensor profile of the radar unit (sionna-mmir calibrate), applied "
+                        "frozen to the forward model")
 
 
 def add_out(p, what: str, required: bool = True, default=None, kind: str = "file") -> None:

@@ -1,7 +1,7 @@
 """``sionna-mmir convert``: any readable capture -> the sionna_mmir HDF5 format."""
 from __future__ import annotations
 
-from .args import FORMATTER, add_capture, add_out
+from .args import FORMATTER, add_capture, add_out, waveform
 
 
 def add_parser(sub) -> None:
@@ -16,7 +16,8 @@ def run(args) -> int:
     from ..captures.loader import load_capture
 
     cap = load_capture(args.capture, frame=args.frame, calib_dir=args.calib_dir,
-                       sensor=args.sensor)
+                       sensor=args.sensor,
+                       waveform=waveform(args))
     cap.save(args.out, overwrite=args.overwrite)
     print(f"wrote {args.out} ({cap.num_frames} frame(s), {cap.radar.adc_shape})")
     return 0

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 
-from .args import FORMATTER, add_out
+from .args import FORMATTER, add_out, add_sensor_profile
 
 
 def add_parser(sub) -> None:
@@ -15,6 +15,7 @@ def add_parser(sub) -> None:
     add_out(p, "report folder", required=False, default="sionna_mmir_demo", kind="folder")
     p.add_argument("--iterations", type=int, default=6,
                    help="fit iterations per model in the inverse-rendering stage (0: skip)")
+    add_sensor_profile(p)
     p.set_defaults(run=run)
 
 
@@ -24,7 +25,7 @@ def run(args) -> int:
 
     positive(args.iterations, "--iterations", minimum=0)
     summary = run_demo(capture=args.capture, out=args.out, overwrite=args.overwrite,
-                       fit_iterations=args.iterations)
+                       fit_iterations=args.iterations, sensor_profile=args.sensor_profile)
     short = {k: v for k, v in summary.items() if k != "fit"}
     short["fit"] = {k: {"ra_correlation_before": v["metrics_before"]["ra_correlation"],
                         "ra_correlation_after": v["metrics_after"]["ra_correlation"],

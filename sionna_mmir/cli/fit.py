@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from ..paths.options import SolverOptions
 from .args import (FORMATTER, add_capture, add_materials, add_out, add_pose, add_scaffold,
-                   add_solver, mesh_names, named, pose, scaffold_options, solver_options)
+                   add_sensor_profile, add_solver, mesh_names, named, pose, scaffold_options,
+                   solver_options, waveform)
 
 
 def add_parser(sub) -> None:
@@ -44,6 +45,7 @@ def add_parser(sub) -> None:
         p.add_argument("--materials-smoothing", type=float, default=0.0,
                        help="the same for the per-vertex materials (0: off)")
         p.add_argument("--resume", action="store_true", help="continue from the checkpoint")
+        add_sensor_profile(p)
         if name == "compare":
             p.add_argument("--sionna-samples", type=int, default=20_000,
                            help="Sionna samples per source per iteration")
@@ -76,7 +78,8 @@ def run(args) -> int:
                      learn=learn_list(args.learn),
                      with_sionna=args.with_sionna,
                      sionna_samples=getattr(args, "sionna_samples", 20_000),
-                     resume=args.resume, overwrite=args.overwrite)
+                     resume=args.resume, overwrite=args.overwrite, waveform=waveform(args),
+                     sensor_profile=args.sensor_profile)
     summary = run_fit(req)
     for k, v in summary.items():
         print(f"{k}: RA correlation {v['metrics_before']['ra_correlation']:.3f} -> "

@@ -5,8 +5,8 @@ The work is :func:`sionna_mmir.pipeline.run_loop`; this module only parses.
 from __future__ import annotations
 
 from ..pipeline.radar_model import loop_solver_options
-from .args import (FORMATTER, add_capture, add_materials, add_out, add_solver, mesh_names, named,
-                   pose, solver_options)
+from .args import (FORMATTER, add_capture, add_materials, add_out, add_sensor_profile, add_solver,
+                   mesh_names, named, pose, solver_options, waveform)
 
 
 def add_parser(sub) -> None:
@@ -37,6 +37,7 @@ def add_parser(sub) -> None:
     p.add_argument("--folds", type=int, default=3, help="cross-validation folds")
     p.add_argument("--penalty", type=float, default=1.0, help="nats per parameter")
     p.add_argument("--resume", action="store_true", help="continue a killed run")
+    add_sensor_profile(p)
     p.set_defaults(run=run)
 
 
@@ -54,7 +55,8 @@ def run(args) -> int:
                       position=position, orientation=orientation,
                       fit_iterations=args.fit_iterations, lr=args.lr, seed=args.seed,
                       solver=solver_options(args), effects=args.effects, folds=args.folds,
-                      penalty=args.penalty, resume=args.resume, overwrite=args.overwrite)
+                      penalty=args.penalty, resume=args.resume, overwrite=args.overwrite,
+                      waveform=waveform(args), sensor_profile=args.sensor_profile)
     doc = run_loop(req)
     print(f"first: RA corr {doc['first']['ra_correlation']:.3f}, residual "
           f"{doc['first']['residual_energy_db']:.2f} dB")

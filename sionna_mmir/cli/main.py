@@ -17,14 +17,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import (bench, convert, dataset, demo, fit, info, loop, occupancy, ra, render,
-               residual, synth)
+from . import (bench, calibrate, convert, dataset, demo, fit, info, loop, occupancy, ra,
+               render, residual, synth)
 from .args import output_guard
 from .boundary import EXIT_BAD_INPUT, EXIT_INTERNAL, error_boundary
 
 #: command modules in the order ``--help`` lists them
-COMMANDS = (demo, info, convert, ra, synth, render, fit, bench, residual, loop, dataset,
-            occupancy)
+COMMANDS = (demo, info, convert, ra, synth, render, fit, bench, calibrate, residual, loop,
+            dataset, occupancy)
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_INTERNAL", "build_parser", "main"]
 

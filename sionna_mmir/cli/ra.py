@@ -4,7 +4,7 @@ from __future__ import annotations
 import pathlib
 
 from ..errors import FrameIndexError
-from .args import FORMATTER, add_capture, add_out, positive
+from .args import FORMATTER, add_capture, add_out, positive, waveform
 
 
 def add_parser(sub) -> None:
@@ -28,7 +28,8 @@ def run(args) -> int:
     from ..processing.imaging import range_azimuth
 
     positive(args.frames, "--frames")
-    cap = load_capture(args.capture, calib_dir=args.calib_dir, sensor=args.sensor)
+    cap = load_capture(args.capture, calib_dir=args.calib_dir, sensor=args.sensor,
+                       waveform=waveform(args))
     first = args.frame or 0
     last = min(cap.num_frames, first + args.frames)
     if not 0 <= first < cap.num_frames:

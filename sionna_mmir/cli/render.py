@@ -11,8 +11,8 @@ import dataclasses
 
 from ..paths.options import SolverOptions
 from ..radar.config import RadarConfig
-from .args import (FORMATTER, add_materials, add_out, add_pose, add_solver, mesh_names, named,
-                   noise_db, pose, positive, solver_options, speed, triple)
+from .args import (FORMATTER, add_materials, add_out, add_pose, add_sensor_profile, add_solver,
+                   mesh_names, named, noise_db, pose, positive, solver_options, speed, triple)
 
 
 def add_parser(sub) -> None:
@@ -38,6 +38,10 @@ def add_parser(sub) -> None:
                    help="object velocity [m/s] (Doppler); repeatable")
     p.add_argument("--noise-db", type=float, default=None,
                    help="receiver noise power per ADC sample relative to the peak sample [dB]")
+    add_sensor_profile(p)
+    p.add_argument("--scene-scale", type=float, default=None,
+                   help="with --sensor-profile: ADC units per rendered unit (default: the "
+                        "render's RMS set to the profile's calibration targets')")
     p.set_defaults(run=run)
 
 
@@ -79,10 +83,19 @@ def run(args) -> int:
     options = solver_options(args, velocities=velocities or None)
     radar = _radar(args)
     check_size(radar, args.frames)
+    profile = None
+    if args.sensor_profile is not None:
+        from ..effects.profile import load_for
+
+        profile = load_for(args.sensor_profile, radar)
     scene = load_scene(names, materials=materials, radar=radar)
     cap = render_capture(scene, radar, options, frames=args.frames, noise_db=args.noise_db,
                          metadata={"meshes": names, "materials": materials},
                          progress=args.frames > 1)
+    if profile is not None:
+        from ..effects.profile import with_profile
+
+        cap = with_profile(cap, profile, args.scene_scale, args.sensor_profile)
     cap.save(args.out, overwrite=args.overwrite)
     print(f"wrote {args.out}: {cap.num_frames} frame(s) of {cap.frames.shape[1:]} "
           f"[tx, rx, chirp, sample], {cap.metadata['hits'][0]} ray hits in frame 0")

@@ -75,8 +75,13 @@ def corner_cone_deg(azimuth_rad: float) -> float:
 
 
 def fit_corner_scene(cap, ra_meas, r_corner, az_corner, origin, *, iterations=8, rays=6000,
-                     sionna_samples=200_000, progress=True) -> dict:
+                     sionna_samples=200_000, progress=True, sensor_profile=None,
+                     arrival=None) -> dict:
     """Fit the corner scene with mmIR and the Sionna RT baseline, like for like.
+
+    ``sensor_profile`` (a :class:`~sionna_mmir.effects.profile.SensorProfile`)
+    is applied frozen to both models' renders (:class:`~sionna_mmir.fit.profiled.ProfiledModel`),
+    with the scene's Rx-side ``arrival`` ramp when given.
 
     Returns the :func:`~sionna_mmir.compare.harness.run_sides` results
     (``{"mmIR": SideResult, "Sionna RT": SideResult}``).
@@ -93,5 +98,9 @@ def fit_corner_scene(cap, ra_meas, r_corner, az_corner, origin, *, iterations=8,
                    solver_options=options.replace(min_rel_power=1e-6))
     sio = SionnaModel(SionnaBaseline(meshes, CORNER_MATERIALS, radar, max_depth=3,
                                      samples_per_src=sionna_samples))
+    if sensor_profile is not None:
+        from ..fit.profiled import ProfiledModel
+
+        mm, sio = (ProfiledModel(m, sensor_profile, cap.adc, arrival=arrival) for m in (mm, sio))
     return run_sides((("mmIR", mm), ("Sionna RT", sio)), ra_meas, cap.adc,
                      iterations=iterations, lr=0.05, progress=progress)

@@ -99,7 +99,8 @@ def resynthesise(cap, r_corner, az_corner, r_leak, centre):
 
 
 def run_demo(capture=None, out="sionna_mmir_demo", overwrite=False, fit_iterations: int = 6,
-             fit_rays: int = 6000, sionna_samples: int = 200_000, progress: bool = True) -> dict:
+             fit_rays: int = 6000, sionna_samples: int = 200_000, progress: bool = True,
+             sensor_profile=None) -> dict:
     """Run the demo; writes ``out/`` and returns the summary dict.
 
     Stage 1 (signal chain): detect the corner and the Tx->Rx leakage,
@@ -107,6 +108,9 @@ def run_demo(capture=None, out="sionna_mmir_demo", overwrite=False, fit_iteratio
     corner-reflector scene (:mod:`.corner_scene`) with mmIR and with the
     Sionna RT baseline, ``fit_iterations`` Adam steps each, same loss; Table 2
     rows, RA panels and loss curves (``fit_iterations=0`` skips it).
+    ``sensor_profile`` (a profile file) is applied frozen to both models'
+    renders in stage 2 (its corner then placed by
+    :func:`~sionna_mmir.effects.sensor_calibration.fit_scene`).
     """
     from ..metrics import all_metrics
     from ..processing.imaging import range_azimuth
@@ -118,6 +122,11 @@ def run_demo(capture=None, out="sionna_mmir_demo", overwrite=False, fit_iteratio
     if note:
         print(f"note: {note}")
     radar = cap.radar
+    profile = None
+    if sensor_profile is not None:
+        from ..effects.profile import load_for
+
+        profile = load_for(sensor_profile, radar)
     ra_meas, ranges, az = range_azimuth(cap.adc, radar)
     r_corner, az_corner, r_leak, centre = detect_corner_and_leakage(cap)
     adc_model = resynthesise(cap, r_corner, az_corner, r_leak, centre)
@@ -127,9 +136,17 @@ def run_demo(capture=None, out="sionna_mmir_demo", overwrite=False, fit_iteratio
     if fit_iterations > 0:
         from .corner_scene import fit_corner_scene
 
-        sides = fit_corner_scene(cap, ra_meas, r_corner, az_corner, centre,
+        r_fit, az_fit, arrival = r_corner, az_corner, None
+        if profile is not None:
+            from ..effects.sensor_calibration import fit_scene
+
+            placed = fit_scene(cap, profile)
+            r_fit, az_fit = placed["range_m"], np.radians(placed["azimuth_deg"])
+            arrival, centre = placed["arrival"], placed["origin"]
+        sides = fit_corner_scene(cap, ra_meas, r_fit, az_fit, centre,
                                  iterations=fit_iterations, rays=fit_rays,
-                                 sionna_samples=sionna_samples, progress=progress)
+                                 sionna_samples=sionna_samples, progress=progress,
+                                 sensor_profile=profile, arrival=arrival)
     summary = {
         "capture": str(cap.source), "note": note,
         "radar": radar.name, "corner_range_m": r_corner,

@@ -68,7 +68,7 @@ def run_side(name, model, ra_ref, adc_ref, *, iterations, lr, seed=0, progress=T
     after, ra = evaluate(model, res.latents, ra_ref, adc_ref)
     return SideResult(name=name, metrics_before=before, metrics_after=after,
                       history=res.history, seconds_per_it=res.seconds_per_it, ra_after=ra,
-                      extra={"fit_wall_s": wall, "latents": res.latents})
+                      extra={"fit_wall_s": wall, "latents": res.latents, "model": model})
 
 
 def run_sides(models, ra_ref, adc_ref, *, iterations, lr, seed=0, progress=True,

@@ -48,6 +48,11 @@ class FitRequest:
         ``"pose"`` the radar pose is fitted too -- set ``solver.boundary``).
     with_sionna : bool
         Fit the Sionna RT baseline too.
+    waveform : dict
+        Waveform values the capture file lacks (``load_capture(waveform=...)``).
+    sensor_profile : str, optional
+        A unit's profile (:mod:`sionna_mmir.effects.profile`), applied frozen to
+        every model's renders (:class:`~sionna_mmir.fit.profiled.ProfiledModel`).
     """
 
     capture: str
@@ -70,6 +75,8 @@ class FitRequest:
     sionna_samples: int = 20_000
     resume: bool = False
     overwrite: bool = False
+    waveform: dict = dataclasses.field(default_factory=dict)
+    sensor_profile: str | None = None
 
 
 def read_meshes(paths: dict) -> dict:
@@ -98,7 +105,8 @@ def load_inputs(req: FitRequest):
         raise FileExistsError(f"{req.out}: report folder exists (use --overwrite or --resume)")
     if req.iterations < 1:
         raise ConfigError(f"--iterations must be >= 1, got {req.iterations}")
-    cap = load_capture(req.capture, frame=req.frame, calib_dir=req.calib_dir)
+    cap = load_capture(req.capture, frame=req.frame, calib_dir=req.calib_dir,
+                       waveform=req.waveform)
     if not np.isfinite(cap.frames.real).all() or not np.isfinite(cap.frames.imag).all():
         raise InputValueError(f"{req.capture}: capture holds NaN or Inf samples")
     radar = dataclasses.replace(cap.radar, position=tuple(req.position),
@@ -122,8 +130,9 @@ def check_overlap(model, where) -> None:
                               "frame, +x boresight, +y left, +z up)")
 
 
-def build_models(req: FitRequest, scene, radar, meshes) -> list:
-    """``[(label, model)]``: mmIR, and the Sionna RT baseline for a comparison."""
+def build_models(req: FitRequest, scene, radar, meshes, profile=None, data=None) -> list:
+    """``[(label, model)]``: mmIR, and the Sionna RT baseline for a comparison;
+    each through ``profile`` (frozen, scene scale set on ``data``) when given."""
     from ..fit import MMIRModel, SionnaModel
 
     mm = MMIRModel(scene, learn=tuple(req.learn), solver_options=req.solver,
@@ -137,6 +146,10 @@ def build_models(req: FitRequest, scene, radar, meshes) -> list:
         models.append(("Sionna RT", SionnaModel(SionnaBaseline(
             meshes, {k: req.materials.get(k, "concrete") for k in meshes}, radar,
             samples_per_src=req.sionna_samples))))
+    if profile is not None:
+        from ..fit.profiled import ProfiledModel
+
+        models = [(label, ProfiledModel(m, profile, data)) for label, m in models]
     return models
 
 
@@ -145,8 +158,13 @@ def run_fit(req: FitRequest) -> dict:
     from .harness import target_ra
 
     cap, radar, meshes, scene = load_inputs(req)
+    profile = None
+    if req.sensor_profile is not None:
+        from ..effects.profile import load_for
+
+        profile = load_for(req.sensor_profile, radar)
     ra_ref = target_ra(cap.frames, radar)
-    models = build_models(req, scene, radar, meshes)
+    models = build_models(req, scene, radar, meshes, profile, cap.frames[0])
     # work in <out>.partial; a killed fit leaves its checkpoints there for resume
     tmp = req.out + ".partial"
     if os.path.exists(tmp) and not req.resume:

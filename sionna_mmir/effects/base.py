@@ -87,6 +87,10 @@ class Effect:
     #: mean the same on averaged data (a static, linear effect); the residual
     #: loop scores such candidates on chirp-averaged data
     chirp_static = True
+    #: a property of the radar unit (same on every capture of it), not of the
+    #: scene or the moment: calibrated once into a sensor profile
+    #: (:mod:`sionna_mmir.effects.profile`), not cross-validated inside one frame
+    per_unit = False
 
     @property
     def scene_side(self) -> bool:

@@ -58,6 +58,11 @@ class LoopRequest:
         transforms (ColoRadar), else the origin.
     fit_iterations : int
         Adam steps of the range-azimuth fit (0: skip it).
+    waveform : dict
+        Waveform values the capture file lacks (``load_capture(waveform=...)``).
+    sensor_profile : str, optional
+        A unit's profile file, applied frozen to the forward model (the RA fit
+        and the sensor chain; :mod:`sionna_mmir.effects.profile`).
     """
 
     capture: str
@@ -81,6 +86,8 @@ class LoopRequest:
     resume: bool = False
     overwrite: bool = False
     progress: bool = True
+    waveform: dict = dataclasses.field(default_factory=dict)
+    sensor_profile: str | None = None
 
 
 def check_request(req: LoopRequest) -> None:
@@ -106,7 +113,8 @@ def load_capture_posed(req: LoopRequest):
     """The capture with its radar at the requested pose (else the run's own)."""
     from ..captures.loader import load_capture
 
-    cap = load_capture(req.capture, frame=req.frame, calib_dir=req.calib_dir, sensor=req.sensor)
+    cap = load_capture(req.capture, frame=req.frame, calib_dir=req.calib_dir, sensor=req.sensor,
+                       waveform=req.waveform)
     if not np.isfinite(cap.frames.real).all() or not np.isfinite(cap.frames.imag).all():
         raise InputValueError(f"{req.capture}: capture holds NaN or Inf samples")
     position, orientation = req.position, req.orientation
@@ -187,8 +195,13 @@ class Loop:
         t0 = time.perf_counter()
         cap = load_capture_posed(self.req)
         scene, self.info = build_scene(self.req, cap)
+        profile = None
+        if self.req.sensor_profile is not None:
+            from ..effects.profile import load_for
+
+            profile = load_for(self.req.sensor_profile, cap.radar)
         self.model = RadarModel(scene, cap, solver=self.req.solver,
-                                max_objects=self.req.max_objects)
+                                max_objects=self.req.max_objects, profile=profile)
         self.timings["load_s"] = time.perf_counter() - t0
         if os.path.exists(self.tmp) and not self.req.resume:
             shutil.rmtree(self.tmp)
@@ -213,7 +226,12 @@ class Loop:
         from ..fit import fit
 
         t0 = time.perf_counter()
-        res = fit(self.model.mmir, target_ra(self.model.capture.frames, self.model.radar),
+        model = self.model.mmir
+        if self.model.profile is not None:
+            from ..fit.profiled import ProfiledModel
+
+            model = ProfiledModel(model, self.model.profile, self.model.capture.frames[0])
+        res = fit(model, target_ra(self.model.capture.frames, self.model.radar),
                   iterations=self.req.fit_iterations, lr=self.req.lr, seed=self.req.seed,
                   progress=self.req.progress,
                   checkpoint=os.path.join(self.tmp, "fit_mmir.h5"))

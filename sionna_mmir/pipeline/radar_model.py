@@ -58,6 +58,9 @@ class RadarModel:
         What the RA fit learns (``MMIRModel`` learnables).
     max_objects : int
         Objects kept as components of their own in the basis.
+    profile : SensorProfile, optional
+        The unit's profile, applied frozen in the sensor chain (never fitted,
+        never subtracted from the data).
     """
 
     scene: object
@@ -65,6 +68,7 @@ class RadarModel:
     solver: SolverOptions = dataclasses.field(default_factory=loop_solver_options)
     learn: tuple = ("materials", "beam")
     max_objects: int = 8
+    profile: object = None
     mmir: object = None
     basis: SceneBasis = None
     chain: EffectModel = None
@@ -103,6 +107,10 @@ class RadarModel:
             self.render_basis()
         ctx = EffectContext.from_capture(self.capture, basis=self.basis)
         self.chain = EffectModel(ctx, self.capture.frames)
+        if self.profile is not None:
+            from ..effects.profile import frozen_profile_effect
+
+            self.chain.add(frozen_profile_effect(self.profile, self.radar, self.chain.scale))
         self.chain.fit(trainable=[], maxiter=100)
         return self.chain
 

@@ -48,6 +48,7 @@ class ChannelGain(Effect):
     name = "channel_gain"
     kind = "mean"
     stage = 1
+    per_unit = True
     description = "per-Tx and per-Rx complex gain (chip LO phase, path loss)"
 
     def param_specs(self, ctx, model, residual):

@@ -85,6 +85,7 @@ class ChirpNonlinearity(Effect):
     name = "chirp_nonlinearity"
     kind = "mean"
     stage = 1
+    per_unit = True
     description = "chirp instantaneous-frequency error e(t) (Legendre series), beat time warp"
 
     def __init__(self, degrees=(0, 1, 2, 3), taylor_order: int = 3, band_start: float = -0.1,

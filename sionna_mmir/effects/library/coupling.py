@@ -186,6 +186,7 @@ class Coupling(Effect):
     name = "coupling"
     kind = "mean"
     stage = 1
+    per_unit = True
     description = "Tx->Rx antenna / on-chip leakage (short-delay paths)"
 
     def __init__(self, num_paths: int = 2, min_range: float = 0.02, max_range: float = 0.5):

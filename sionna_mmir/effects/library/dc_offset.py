@@ -17,6 +17,7 @@ class DCOffset(Effect):
     name = "dc_offset"
     kind = "mean"
     stage = 3
+    per_unit = True
     description = "constant complex offset per receiver (ADC DC)"
 
     def param_specs(self, ctx, model, residual):

@@ -93,6 +93,7 @@ class DelayOffset(Effect):
     name = "delay_offset"
     kind = "mean"
     stage = 1
+    per_unit = True
     description = "per-Tx and per-Rx extra delay (traces, LO distribution)"
 
     def __init__(self, max_offset_ps: float = 300.0, step_ps: float = 0.5):

@@ -51,6 +51,7 @@ class FrequencyOffset(Effect):
     name = "frequency_offset"
     kind = "mean"
     stage = 1
+    per_unit = True
     description = "beat-frequency offset per receive chip (LO ramp mismatch)"
 
     def __init__(self, max_offset_khz: float = 20.0):

@@ -105,6 +105,7 @@ class IFFilter(Effect):
     name = "if_filter"
     kind = "mean"
     stage = 2
+    per_unit = True
     description = "IF high-pass (1st order) and anti-alias low-pass (Butterworth)"
 
     def __init__(self, lowpass_order: int = 4, band_start: float = -0.1, extension: int = 32,

@@ -66,6 +66,7 @@ class IQImbalance(Effect):
     name = "iq_imbalance"
     kind = "mean"
     stage = 3
+    per_unit = True
     description = "per-receiver I/Q gain and phase imbalance (image at -f)"
 
     def __init__(self, max_gain_error: float = 0.5, max_phase_deg: float = 30.0):
