@@ -51,13 +51,14 @@ def _best(fns) -> list:
     return [min(t) for t in times]
 
 
-def _mmir(scene, boundary: bool):
+def _mmir(scene, boundary: bool, depth: int = 1, **extra):
     import drjit as dr
     import mitsuba as mi
 
     from sionna_mmir.paths import RadarPathSolver, SolverOptions
 
-    opts = SolverOptions(num_rays=RAYS, max_depth=1, scattering=False, boundary=boundary)
+    opts = SolverOptions(num_rays=RAYS, max_depth=depth, scattering=False, boundary=boundary,
+                         **extra)
     solver = RadarPathSolver()
     base_p, base_o = np.array(scene.position), np.array(scene.orientation)
 
@@ -73,7 +74,7 @@ def _mmir(scene, boundary: bool):
     return run
 
 
-def _sionna(meshes, radar):
+def _sionna(meshes, radar, depth: int = 1):
     import drjit as dr
     import mitsuba as mi
     import sionna.rt as rt
@@ -104,7 +105,7 @@ def _sionna(meshes, radar):
     scene.add(rt.Receiver("radar_rx", position=centre, orientation=mi.Point3f(0, 0, 0)))
     solver = rt.PathSolver()
     solver.loop_mode = "evaluated"          # reverse-mode AD through Sionna's loop
-    kw = dict(max_depth=1, samples_per_src=RAYS, max_num_paths_per_src=RAYS, los=False,
+    kw = dict(max_depth=depth, samples_per_src=RAYS, max_num_paths_per_src=RAYS, los=False,
               specular_reflection=True, diffuse_reflection=True, refraction=False,
               diffraction=False, synthetic_array=True, seed=0)
 

@@ -53,3 +53,13 @@ def test_bench_boundary_term_cost():
     print("\n" + res["markdown"])
     assert res["boundary_on_s"] > 0 and res["boundary_off_s"] > 0
     assert math.isfinite(res["on_vs_off"])
+
+
+@pytest.mark.benchmark
+def test_bench_sms_fsd_cost():
+    """Forward + backward with SMS / coherent FSD on and off, and Sionna RT (timings printed)."""
+    import bench_sms_fsd
+
+    res = bench_sms_fsd.measure()
+    print("\n" + res["markdown"])
+    assert all(t > 0 for t in res["seconds"].values())
