@@ -70,7 +70,7 @@ def score_case(case, doc) -> dict:
     if not planted or planted == ["pose_offset"]:
         out["ok"] = not sensor
         if planted:
-            out["pose"] = doc["scene_mismatch"].get("pose_offset")
+            out["pose"] = doc["scene_mismatch"]["final"].get("pose_offset")
     elif any(e.startswith("outside:") for e in planted):
         u = doc["unexplained"]
         spread = max(u["spread_db"].values())

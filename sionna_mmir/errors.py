@@ -19,3 +19,15 @@ class CaptureFormatError(SionnaMMIRError):
 
 class InputValueError(SionnaMMIRError):
     """An array argument has the wrong shape or holds NaN / Inf."""
+
+
+class FrameIndexError(SionnaMMIRError, IndexError):
+    """A frame index outside the capture (also an ``IndexError``)."""
+
+
+class ResourceError(SionnaMMIRError):
+    """A request larger than the machine: the memory it needs, or a Dr.Jit limit."""
+
+
+class OutputError(SionnaMMIRError):
+    """An output path that cannot be used: not a folder, name too long, in use."""

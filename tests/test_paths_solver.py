@@ -352,7 +352,7 @@ def _dihedral_reference(O, u1, u2, w, a, h=0.0005):
 @pytest.mark.parametrize("subdiv", [2, 4])
 def test_17_dihedral_double_bounce_matches_image_theory_physical_optics(subdiv):
     """A 90 deg PEC dihedral (0.3 m plates) at 2 m, in its near field: the coherent
-    double bounce (integrated over the first plate, Tx leg from the unfolded image)
+    double bounce (the exit aperture on the second plate, Rx leg from the receiver's image)
     matches a brute-force image-theory PO integral, whatever the tessellation."""
     R, a = 2.0, 0.3
     s2 = np.sqrt(0.5)

@@ -60,7 +60,7 @@ def test_02_existing_report_is_never_overwritten_silently(tmp_path, capsys):
     (out / "keep.txt").write_text("old")
     rc = main(["residual", cap, "--model", mod, "--out", str(out), "--effects", "dc_offset"])
     assert rc == 2
-    assert "already there" in capsys.readouterr().err
+    assert f"{out}: exists; pass --overwrite" in capsys.readouterr().err
     assert (out / "keep.txt").read_text() == "old"
 
 

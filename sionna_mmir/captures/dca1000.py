@@ -70,6 +70,7 @@ import numpy as np
 
 from ..errors import CaptureFormatError, InputValueError
 from ..radar.config import RadarConfig
+from ..utils.memory import array_bytes, check_memory
 from .capture import Capture
 
 LAYOUTS = ("pairs", "ti", "iq", "two_rx", "real")
@@ -190,6 +191,40 @@ def decode_dca1000(raw: np.ndarray, layout: str = DEFAULT_LAYOUT,
     return z.reshape(-1) if num_samples is None else z.reshape(-1, num_samples)
 
 
+def _frame_count(path, radar: RadarConfig, layout: str, num_frames) -> tuple:
+    """``(frames to read, frames in the file)``, the file size and the memory
+    the read takes checked."""
+    fb = frame_bytes(radar, layout)
+    desc = (f"{radar.name} layout {radar.num_tx} tx x {radar.num_rx} rx x "
+            f"{radar.num_chirps} chirp x {radar.num_samples} samples ({layout!r} DCA1000 layout)")
+    size = os.path.getsize(path)
+    if size == 0:
+        raise CaptureFormatError(f"{path}: file is empty (one frame of the {desc} is "
+                                 f"{fb} bytes)")
+    if size % fb:
+        raise CaptureFormatError(f"{path}: size {size} bytes is not a multiple of one frame "
+                                 f"({fb} bytes) of the {desc}")
+    available = size // fb
+    if num_frames is None:
+        count = available
+    else:
+        if int(num_frames) != num_frames or int(num_frames) < 1:
+            raise InputValueError(f"read_dca1000: num_frames must be a positive integer, "
+                                  f"got {num_frames!r}")
+        count = int(num_frames)
+        if count > available:
+            raise CaptureFormatError(f"{path}: {count} frames requested, the file holds "
+                                     f"{available} frames of the {desc}")
+    n_int16 = count * fb // 2
+    if n_int16 % _GROUP[layout]:
+        raise CaptureFormatError(f"{path}: {count} frame(s) of the {desc} are not a whole "
+                                 f"number of DCA1000 groups of {_GROUP[layout]} int16 values")
+    # the int16 samples, the decoded complex samples, the frames and Capture's checks
+    check_memory(2 * n_int16 + 3 * array_bytes((count, *radar.adc_shape), 8),
+                 f"{path}: reading {count} frame(s)")
+    return count, available
+
+
 def read_dca1000(path, radar: RadarConfig | None = None, num_frames: int | None = None,
                  frame_period: float | None = None, layout: str = DEFAULT_LAYOUT) -> Capture:
     """Read a DCA1000 ``.bin`` capture.
@@ -242,31 +277,8 @@ def read_dca1000(path, radar: RadarConfig | None = None, num_frames: int | None 
     if layout == "two_rx" and radar.num_rx % 2:
         raise CaptureFormatError(f"{path}: the 'two_rx' layout pairs Rx; num_rx must be "
                                  f"even, got {radar.num_rx}")
-    fb = frame_bytes(radar, layout)
-    desc = (f"{radar.name} layout {radar.num_tx} tx x {radar.num_rx} rx x "
-            f"{radar.num_chirps} chirp x {radar.num_samples} samples ({layout!r} DCA1000 layout)")
-    size = os.path.getsize(path)
-    if size == 0:
-        raise CaptureFormatError(f"{path}: file is empty (one frame of the {desc} is "
-                                 f"{fb} bytes)")
-    if size % fb:
-        raise CaptureFormatError(f"{path}: size {size} bytes is not a multiple of one frame "
-                                 f"({fb} bytes) of the {desc}")
-    available = size // fb
-    if num_frames is None:
-        count = available
-    else:
-        if int(num_frames) != num_frames or int(num_frames) < 1:
-            raise InputValueError(f"read_dca1000: num_frames must be a positive integer, "
-                                  f"got {num_frames!r}")
-        count = int(num_frames)
-        if count > available:
-            raise CaptureFormatError(f"{path}: {count} frames requested, the file holds "
-                                     f"{available} frames of the {desc}")
-    n_int16 = count * fb // 2
-    if n_int16 % _GROUP[layout]:
-        raise CaptureFormatError(f"{path}: {count} frame(s) of the {desc} are not a whole "
-                                 f"number of DCA1000 groups of {_GROUP[layout]} int16 values")
+    count, available = _frame_count(path, radar, layout, num_frames)
+    n_int16 = count * frame_bytes(radar, layout) // 2
     raw = np.fromfile(path, dtype="<i2", count=n_int16)
     if raw.size != n_int16:
         raise CaptureFormatError(f"{path}: read {raw.size} int16 values, expected {n_int16}")

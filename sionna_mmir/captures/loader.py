@@ -1,4 +1,9 @@
-"""``load_capture``: open any supported capture by what its path is.
+"""``load_capture``: open any supported capture by what it holds, then by its name.
+
+A file that starts with a known signature is read by the reader of its
+content, whatever its extension (an HDF5 capture renamed ``.bin`` is still
+an HDF5 capture, not raw samples); see :func:`sniff`.  Files without a
+signature (raw ``.bin`` samples, MATLAB v4) go by their extension:
 
 ==========================  ==================================================
 path                        reader
@@ -16,13 +21,60 @@ from __future__ import annotations
 import os
 import pathlib
 
-from ..errors import CaptureFormatError
+from ..errors import CaptureFormatError, FrameIndexError
 from ..radar.config import RadarConfig
 from .capture import Capture
 
 SUPPORTED = ("sionna_mmir HDF5 (.h5, .hdf5)", "TI MMWCAS calibration (.mat)",
              "ColoRadar run folder", "ColoRadar frame_N.bin", "DCA1000 raw (.bin)",
              "OpenRadar example (.npy)")
+
+
+#: signatures: HDF5 at offset 0 or a power-of-two user block >= 512 bytes, NumPy, MATLAB
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+NPY_MAGIC = b"\x93NUMPY"
+MAT_TEXT = b"MATLAB "
+_EXTENSIONS = {"hdf5": (".h5", ".hdf5"), "mat": (".mat",), "npy": (".npy",)}
+
+
+def sniff(path) -> str | None:
+    """What a file holds by its first bytes: ``"hdf5"``, ``"mat"`` (MATLAB
+    v5 or v7.3, whose header text starts ``MATLAB``), ``"npy"``, or None.
+
+    A MATLAB v7.3 file is HDF5 with a 512-byte user block; it is ``"mat"``.
+    """
+    with open(path, "rb") as f:
+        head = f.read(8)
+        if head.startswith(MAT_TEXT):
+            return "mat"
+        if head == HDF5_MAGIC:
+            return "hdf5"
+        if head.startswith(NPY_MAGIC):
+            return "npy"
+        size, offset = os.fstat(f.fileno()).st_size, 512
+        while offset + 8 <= min(size, 1 << 20):           # HDF5 after a user block
+            f.seek(offset)
+            if f.read(8) == HDF5_MAGIC:
+                return "hdf5"
+            offset *= 2
+    return None
+
+
+def _kind(p: pathlib.Path) -> str:
+    """The reader for file ``p``: its content's, else its extension's."""
+    if p.stat().st_size == 0:
+        raise CaptureFormatError(f"{p}: file is empty")
+    content = sniff(p)
+    ext = p.suffix.lower()
+    if content is not None:
+        return content
+    for kind, exts in _EXTENSIONS.items():
+        if ext in exts:
+            return kind
+    if ext == ".bin":
+        return "bin"
+    raise CaptureFormatError(f"{p}: unknown capture format {ext or '(no extension)'!r}; "
+                             f"supported: {'; '.join(SUPPORTED)}")
 
 
 def _select(cap: Capture, frame, path) -> Capture:
@@ -32,9 +84,9 @@ def _select(cap: Capture, frame, path) -> Capture:
     try:
         idx = int(frame)
     except (TypeError, ValueError):
-        raise IndexError(f"{path}: frame must be an integer, got {frame!r}") from None
+        raise FrameIndexError(f"{path}: frame must be an integer, got {frame!r}") from None
     if not -n <= idx < n:
-        raise IndexError(f"{path}: frame {idx} requested, the capture has {n} frame(s) "
+        raise FrameIndexError(f"{path}: frame {idx} requested, the capture has {n} frame(s) "
                          f"(valid 0..{n - 1})")
     return cap.frame(idx)
 
@@ -68,8 +120,9 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
     FileNotFoundError
         A missing path.
     CaptureFormatError
-        An unknown extension (the message lists the supported formats).
-    IndexError
+        An unknown extension without a known signature (the message lists
+        the supported formats), or a file its reader refuses.
+    FrameIndexError
         A frame index out of range.
     """
     from .coloradar import (coloradar_radar, find_frame_file, frame_index_from_name,
@@ -83,28 +136,25 @@ def load_capture(path, frame: int | None = None, *, radar: RadarConfig | None = 
         if radar is not None:                 # explicit radar: no calibration lookup
             return read_coloradar_frame(find_frame_file(p, index, sensor), radar)
         return read_coloradar_run(p, frame=index, calib_dir=calib_dir, sensor=sensor)
-    ext = p.suffix.lower()
-    if ext in (".h5", ".hdf5"):
+    kind = _kind(p)
+    if kind == "hdf5":
         cap = Capture.load(p)
-    elif ext == ".mat":
+    elif kind == "mat":
         from .ti_mat import read_ti_mat
 
         cap = read_ti_mat(p)
-    elif ext == ".bin" and frame_index_from_name(p) is not None:
+    elif kind == "npy":
+        from .openradar import read_openradar_npy
+
+        cap = read_openradar_npy(p)
+    elif frame_index_from_name(p) is not None:
         if radar is None:
             radar, _ = coloradar_radar(p.parent, calib_dir, sensor)
         cap = read_coloradar_frame(p, radar)
         if frame is not None and frame == frame_index_from_name(p):
             frame = None                     # "frame N" of frame_N.bin is this file
-    elif ext == ".bin":
+    else:
         from .dca1000 import read_dca1000
 
         cap = read_dca1000(p, radar=radar)
-    elif ext == ".npy":
-        from .openradar import read_openradar_npy
-
-        cap = read_openradar_npy(p)
-    else:
-        raise CaptureFormatError(f"{p}: unknown capture format {ext or '(no extension)'!r}; "
-                                 f"supported: {'; '.join(SUPPORTED)}")
     return _select(cap, frame, os.fspath(p))

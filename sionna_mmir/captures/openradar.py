@@ -54,6 +54,31 @@ def openradar_radar(num_tx: int, num_rx: int, num_chirps: int) -> RadarConfig:
                                     name=f"openradar_{num_tx}tx{num_rx}rx", **WAVEFORM)
 
 
+def check_npy_size(path) -> None:
+    """Compare a ``.npy`` file's declared array with the file size and the
+    available memory before reading it (a header is cheap to read)."""
+    from ..utils.memory import array_bytes, check_memory, format_bytes
+
+    try:
+        with open(path, "rb") as f:
+            fmt = np.lib.format
+            version = fmt.read_magic(f)
+            header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+            shape, _, dtype = header(f)
+            offset = f.tell()
+            size = os.fstat(f.fileno()).st_size
+    except (ValueError, OSError, EOFError) as e:
+        raise CaptureFormatError(f"{path}: not a readable .npy array ({e})") from None
+    declared = array_bytes(shape, dtype.itemsize)
+    if dtype.hasobject:
+        raise CaptureFormatError(f"{path}: holds Python objects, not numbers")
+    if offset + declared > size:
+        raise CaptureFormatError(f"{path}: declares {shape} {dtype} ({format_bytes(declared)}) "
+                                 f"but holds {format_bytes(size - offset)} of data (truncated?)")
+    # the array, its real and imaginary parts as float64 and the signed copy
+    check_memory(declared + 5 * array_bytes(shape, 16), f"{path}: reading its array")
+
+
 def read_openradar_npy(path) -> Capture:
     """Read an OpenRadar example array.
 
@@ -81,9 +106,10 @@ def read_openradar_npy(path) -> Capture:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: no such file")
+    check_npy_size(path)
     try:
         x = np.load(path, allow_pickle=False)
-    except (ValueError, OSError) as e:
+    except (ValueError, OSError, EOFError) as e:        # EOFError: an empty file
         raise CaptureFormatError(f"{path}: not a readable .npy array ({e})") from None
     if not np.issubdtype(x.dtype, np.number):
         raise CaptureFormatError(f"{path}: dtype {x.dtype} is not numeric")

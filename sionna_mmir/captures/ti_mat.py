@@ -35,6 +35,8 @@ from ..radar.config import RadarConfig
 from .capture import Capture
 
 NUM_TX, NUM_RX, INTERP = 12, 16, 5
+#: the variables read (others are skipped unread)
+WANTED = ("calibResult", "params")
 
 
 def calibration_window(n: int) -> np.ndarray:
@@ -62,10 +64,66 @@ def adc_from_rx_fft(rx_fft: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(adc[:, :, ::-1].transpose(2, 1, 0))
 
 
+def _loadmat(path) -> dict:
+    """``calibResult`` and ``params`` of the file (other variables are skipped),
+    and ``__names__``: every variable's name."""
+    import scipy.io
+
+    try:
+        mat = scipy.io.loadmat(path, variable_names=WANTED)
+        mat["__names__"] = [name for name, _, _ in scipy.io.whosmat(path)]
+    except Exception as e:  # scipy raises ValueError / MatReadError / TypeError
+        raise CaptureFormatError(f"{path}: not a readable MATLAB .mat file ({e})") from None
+    return mat
+
+
+def check_declared(path) -> None:
+    """Check the arrays the file declares before any is read (see :mod:`.mat5`).
+
+    Raises :class:`CaptureFormatError` for a wrongly shaped ``Rx_fft``, a
+    MATLAB v7.3 file, or arrays declaring more than ``MAX_RATIO`` times the
+    file's size (a decompression bomb), and :class:`ResourceError` for
+    arrays that do not fit in the available memory.
+    """
+    from ..utils.memory import check_memory, format_bytes
+    from .mat5 import MAX_RATIO, MatHeaderError, declared_arrays
+
+    try:
+        arrays = declared_arrays(path, wanted=WANTED)
+    except (MatHeaderError, OSError) as e:
+        raise CaptureFormatError(f"{path}: not a readable MATLAB .mat file ({e})") from None
+    if arrays is None:
+        with open(path, "rb") as f:
+            if f.read(10) == b"MATLAB 7.3":
+                raise CaptureFormatError(f"{path}: MATLAB v7.3 (HDF5) .mat files are not read; "
+                                         "save it with save(..., '-v7')")
+        return                                        # v4: no compression, file-sized
+    found = {a.name: a for a in arrays}
+    rx = found.get("calibResult.Rx_fft")
+    if rx is not None:
+        _check_rx_shape(path, rx.shape, rx.is_complex)
+    total, size = sum(a.nbytes for a in arrays), os.path.getsize(path)
+    if total > MAX_RATIO * size + (1 << 20):
+        raise CaptureFormatError(f"{path}: declares {format_bytes(total)} of arrays in a "
+                                 f"{format_bytes(size)} file (more than {MAX_RATIO} times its "
+                                 "size): not a measured calibration")
+    work = 4 * rx.nbytes if rx is not None else 0     # inverse FFT, magnitudes, ADC
+    check_memory(total + work, f"{path}: reading calibResult")
+
+
+def _check_rx_shape(path, shape, is_complex: bool) -> None:
+    if not is_complex:
+        raise CaptureFormatError(f"{path}: calibResult.Rx_fft is real, expected complex")
+    shape = tuple(shape)
+    if len(shape) != 3 or shape[1:] != (NUM_RX, NUM_TX) or shape[0] % INTERP or shape[0] == 0:
+        raise CaptureFormatError(f"{path}: calibResult.Rx_fft has shape {shape}, expected "
+                                 f"(5N, {NUM_RX}, {NUM_TX})")
+
+
 def _fields(path, mat, name):
     if name not in mat:
         raise CaptureFormatError(f"{path}: no variable {name!r} (found "
-                                 f"{sorted(k for k in mat if not k.startswith('__'))})")
+                                 f"{sorted(mat.get('__names__', []))})")
     v = mat[name]
     if not isinstance(v, np.ndarray) or v.dtype.names is None or v.size != 1:
         raise CaptureFormatError(f"{path}: {name!r} is not a MATLAB struct")
@@ -83,6 +141,33 @@ def _scalar(path, params, key):
     if not np.isfinite(val) or val <= 0:
         raise CaptureFormatError(f"{path}: params.{key} = {val} is not a positive number")
     return val
+
+
+def _extras(path, cr: dict) -> dict:
+    """The optional calibration matrices of ``calibResult``, in device Tx order."""
+    extras = {}
+    for key, dtype in (("RangeMat", np.int32), ("PeakValMat", np.complex128),
+                       ("AngleMat", np.float64)):
+        if key in cr:
+            v = cr[key]
+            if v.shape != (NUM_TX, NUM_RX):
+                raise CaptureFormatError(f"{path}: calibResult.{key} has shape {v.shape}, "
+                                         f"expected ({NUM_TX}, {NUM_RX})")
+            extras[key] = np.ascontiguousarray(v[::-1].astype(dtype))
+    if "RxMismatch" in cr:
+        v = cr["RxMismatch"]
+        if v.size != NUM_RX:
+            raise CaptureFormatError(f"{path}: calibResult.RxMismatch has {v.size} values, "
+                                     f"expected {NUM_RX}")
+        extras["RxMismatch"] = v.reshape(-1).astype(np.float64)
+    if "TxMismatch" in cr:
+        v = cr["TxMismatch"]
+        if v.size != NUM_TX:
+            raise CaptureFormatError(f"{path}: calibResult.TxMismatch has {v.size} values, "
+                                     f"expected {NUM_TX}")
+        extras["TxMismatch"] = np.ascontiguousarray(
+            v.reshape(-1, order="F")[::-1].astype(np.float64))
+    return extras
 
 
 def read_ti_mat(path) -> Capture:
@@ -120,17 +205,17 @@ def read_ti_mat(path) -> Capture:
     CaptureFormatError
         Missing ``calibResult`` / ``Rx_fft`` / ``params``, a non-complex or
         wrongly shaped ``Rx_fft``, or an ``Rx_fft`` that is not a 5x
-        zero-padded FFT (the message names the file).
+        zero-padded FFT, a MATLAB v7.3 file, or arrays declaring far more
+        than the file holds (the message names the file); checked on the
+        declared headers before anything is read where possible.
+    ResourceError
+        Arrays that do not fit in the available memory.
     """
-    import scipy.io
-
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: no such file")
-    try:
-        mat = scipy.io.loadmat(path)
-    except Exception as e:  # scipy raises ValueError / MatReadError / TypeError
-        raise CaptureFormatError(f"{path}: not a readable MATLAB .mat file ({e})") from None
+    check_declared(path)
+    mat = _loadmat(path)
     cr = _fields(path, mat, "calibResult")
     params = _fields(path, mat, "params")
     if "Rx_fft" not in cr:
@@ -139,9 +224,7 @@ def read_ti_mat(path) -> Capture:
     X = cr["Rx_fft"]
     if not np.iscomplexobj(X):
         raise CaptureFormatError(f"{path}: calibResult.Rx_fft is {X.dtype}, expected complex")
-    if X.ndim != 3 or X.shape[1:] != (NUM_RX, NUM_TX) or X.shape[0] % INTERP or X.shape[0] == 0:
-        raise CaptureFormatError(f"{path}: calibResult.Rx_fft has shape {X.shape}, expected "
-                                 f"(5N, {NUM_RX}, {NUM_TX})")
+    _check_rx_shape(path, X.shape, True)
     if not np.all(np.isfinite(X)):
         raise CaptureFormatError(f"{path}: calibResult.Rx_fft holds NaN or Inf")
     n = X.shape[0] // INTERP
@@ -154,28 +237,7 @@ def read_ti_mat(path) -> Capture:
     fs = _scalar(path, params, "Sampling_Rate_sps")
     radar = RadarConfig.mmwcas(num_chirps=1, slope=slope, sample_rate=fs, num_samples=n)
 
-    extras = {}
-    for key, dtype in (("RangeMat", np.int32), ("PeakValMat", np.complex128),
-                       ("AngleMat", np.float64)):
-        if key in cr:
-            v = cr[key]
-            if v.shape != (NUM_TX, NUM_RX):
-                raise CaptureFormatError(f"{path}: calibResult.{key} has shape {v.shape}, "
-                                         f"expected ({NUM_TX}, {NUM_RX})")
-            extras[key] = np.ascontiguousarray(v[::-1].astype(dtype))
-    if "RxMismatch" in cr:
-        v = cr["RxMismatch"]
-        if v.size != NUM_RX:
-            raise CaptureFormatError(f"{path}: calibResult.RxMismatch has {v.size} values, "
-                                     f"expected {NUM_RX}")
-        extras["RxMismatch"] = v.reshape(-1).astype(np.float64)
-    if "TxMismatch" in cr:
-        v = cr["TxMismatch"]
-        if v.size != NUM_TX:
-            raise CaptureFormatError(f"{path}: calibResult.TxMismatch has {v.size} values, "
-                                     f"expected {NUM_TX}")
-        extras["TxMismatch"] = np.ascontiguousarray(
-            v.reshape(-1, order="F")[::-1].astype(np.float64))
+    extras = _extras(path, cr)
     metadata = {"file": os.path.basename(path), "format": "ti_mat", "chirps_averaged": True,
                 "frame_period": None, "iq_conjugated": False,
                 "interp_factor": INTERP, "tx_order_in_file": "enable order 12..1 (reversed)"}

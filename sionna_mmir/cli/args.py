@@ -9,6 +9,7 @@ default lives in one place; angles on the command line are degrees.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 
 import numpy as np
@@ -45,10 +46,56 @@ def add_capture(p, frame: bool = True) -> None:
                    help="ColoRadar sensor")
 
 
-def add_out(p, what: str, required: bool = True, default=None) -> None:
-    """``--out`` and ``--overwrite``."""
+def add_out(p, what: str, required: bool = True, default=None, kind: str = "file") -> None:
+    """``--out`` and ``--overwrite``; ``kind`` is ``"file"`` or ``"folder"``
+    (checked, and a folder locked, by :func:`output_guard`)."""
     p.add_argument("--out", required=required, default=default, help=what)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.set_defaults(_out_kind=kind)
+
+
+@contextlib.contextmanager
+def output_guard(args):
+    """Check ``--out`` before the command works, and hold a report folder's lock.
+
+    A file output must be new (or ``--overwrite``), have a name the file
+    system allows and lie in a writable folder; a folder output the same,
+    and it must not be a file.  ``--resume`` counts as ``--overwrite``.  A
+    report folder is locked (``<out>.lock``) while the command runs.
+    """
+    from ..utils.outputs import check_output_file, check_output_folder, folder_lock
+
+    out, kind = getattr(args, "out", None), getattr(args, "_out_kind", None)
+    if not out or kind is None:
+        yield
+        return
+    replace = bool(getattr(args, "overwrite", False) or getattr(args, "resume", False))
+    if kind == "file":
+        check_output_file(out, replace)
+        yield
+        return
+    check_output_folder(out, replace)
+    with folder_lock(out):
+        check_output_folder(out, replace)           # as it is now the lock is held
+        try:
+            yield
+        except OSError as exc:
+            raise _about_folder(exc, out) from exc
+
+
+def _about_folder(exc: OSError, out: str) -> OSError:
+    """``exc`` re-made to name the report folder ``out`` when it names a file
+    of its work folder (``<out>.partial``, or the demo's ``.demo-*``)."""
+    if exc.filename is None or exc.errno is None:
+        return exc
+    path, parent = os.path.abspath(os.fsdecode(exc.filename)), os.path.dirname(os.path.abspath(out))
+    first = os.path.relpath(path, parent).split(os.sep)[0]
+    base = os.path.basename(os.path.abspath(out))
+    if first not in (base, base + ".partial") and not first.startswith(".demo-"):
+        return exc
+    inner = os.path.relpath(path, os.path.join(parent, first))
+    where = "" if inner == "." else f" (writing {inner})"
+    return OSError(exc.errno, f"{exc.strerror or exc}{where}", out)
 
 
 def add_pose(p) -> None:
@@ -92,13 +139,23 @@ def add_solver(p, preset: SolverOptions, fields=("rays", "depth", "sampling", "c
     p.set_defaults(_solver_preset=preset, _solver_fields=tuple(fields))
 
 
+#: working memory per candidate ray [bytes]: a floor (measured about 54 B on a one-wall
+#: scene; more paths and depth take more)
+BYTES_PER_RAY = 48
+
+
 def solver_options(args, **extra) -> SolverOptions:
-    """The :class:`SolverOptions` the solver arguments describe."""
+    """The :class:`SolverOptions` the solver arguments describe (validated:
+    the Dr.Jit limit on ``--rays``, and its memory floor against the machine's)."""
+    from ..utils.memory import check_memory
+
     names = {"rays": "num_rays", "depth": "max_depth", "sampling": "sampling",
              "cone": "cone_angle_deg", "min_rel_power": "min_rel_power", "seed": "seed",
              "diffraction": "diffraction"}
     values = {names[f]: getattr(args, f) for f in args._solver_fields}
-    return args._solver_preset.replace(**values, **extra)
+    options = args._solver_preset.replace(**values, **extra)
+    check_memory(int(options.num_rays) * BYTES_PER_RAY, f"--rays {options.num_rays}: tracing")
+    return options
 
 
 def add_scaffold(p, preset: str = "none") -> None:
@@ -151,16 +208,32 @@ def mesh_names(paths) -> dict:
     names = {}
     for path in paths:
         stem = os.path.splitext(os.path.basename(path))[0].replace(".", "_")
+        try:
+            stem.encode("utf-8")
+        except UnicodeEncodeError:
+            raise InputValueError(f"{path}: the file name is not valid UTF-8, so it cannot "
+                                  "name a scene object; rename the file") from None
         if stem in names:
             raise InputValueError(f"{path}: two meshes share the object name {stem!r}")
         names[stem] = path
     return names
 
 
-def check_new(path, overwrite: bool) -> None:
-    """Raise ``FileExistsError`` if ``path`` exists and may not be replaced."""
-    if os.path.exists(path) and not overwrite:
-        raise FileExistsError(f"{path}: exists; pass --overwrite to replace it")
+def speed(vals, what: str):
+    """``vals`` (a velocity vector or a radial speed [m/s]) if slower than light."""
+    from ..radar.config import SPEED_OF_LIGHT
+
+    if float(np.linalg.norm(vals)) >= SPEED_OF_LIGHT:
+        raise InputValueError(f"{what}: speed {float(np.linalg.norm(vals)):.6g} m/s is not "
+                              f"below the speed of light ({SPEED_OF_LIGHT:.0f} m/s)")
+    return vals
+
+
+def noise_db(value, flag: str = "--noise-db"):
+    """``value`` if it is None or a finite power ratio within +-300 dB."""
+    if value is not None and not (np.isfinite(value) and abs(value) <= 300):
+        raise ConfigError(f"{flag} {value}: expected a finite number of dB within +-300")
+    return value
 
 
 def positive(value, flag: str, minimum: int = 1) -> None:

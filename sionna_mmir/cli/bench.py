@@ -7,8 +7,8 @@ from __future__ import annotations
 import json
 
 from ..paths.options import SolverOptions
-from .args import (FORMATTER, add_out, add_scaffold, add_solver, check_new, positive,
-                   scaffold_options, solver_options)
+from .args import (FORMATTER, add_out, add_scaffold, add_solver, positive, scaffold_options,
+                   solver_options)
 
 
 def add_parser(sub) -> None:
@@ -34,8 +34,6 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from ..compare.bench import BenchRequest, bench_table, run_bench
 
-    if args.out:
-        check_new(args.out, args.overwrite)
     for flag, value in (("--repeat", args.repeat), ("--sionna-depth", args.sionna_depth),
                         ("--max-triangles", args.max_triangles)):
         positive(value, flag)
@@ -51,7 +49,7 @@ def run(args) -> int:
     if args.out:
         from ..utils.atomic import atomic_path
 
-        with atomic_path(args.out) as tmp:
+        with atomic_path(args.out, overwrite=args.overwrite) as tmp:
             with open(tmp, "w") as f:
                 json.dump(out, f, indent=1)
     return 0

@@ -1,7 +1,7 @@
 """``sionna-mmir convert``: any readable capture -> the sionna_mmir HDF5 format."""
 from __future__ import annotations
 
-from .args import FORMATTER, add_capture, add_out, check_new
+from .args import FORMATTER, add_capture, add_out
 
 
 def add_parser(sub) -> None:
@@ -15,7 +15,6 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from ..captures.loader import load_capture
 
-    check_new(args.out, args.overwrite)
     cap = load_capture(args.capture, frame=args.frame, calib_dir=args.calib_dir,
                        sensor=args.sensor)
     cap.save(args.out, overwrite=args.overwrite)

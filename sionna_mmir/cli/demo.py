@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 
-from .args import FORMATTER
+from .args import FORMATTER, add_out
 
 
 def add_parser(sub) -> None:
@@ -12,8 +12,7 @@ def add_parser(sub) -> None:
                        formatter_class=FORMATTER)
     p.add_argument("--capture", default=None, help="capture to use (default: "
                    "../shared/data/measured/mmwcas_corner/corner_4m7_slope79.mat if found)")
-    p.add_argument("--out", default="sionna_mmir_demo", help="report folder")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing report")
+    add_out(p, "report folder", required=False, default="sionna_mmir_demo", kind="folder")
     p.add_argument("--iterations", type=int, default=6,
                    help="fit iterations per model in the inverse-rendering stage (0: skip)")
     p.set_defaults(run=run)
@@ -21,7 +20,9 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..compare.demo import run_demo
+    from .args import positive
 
+    positive(args.iterations, "--iterations", minimum=0)
     summary = run_demo(capture=args.capture, out=args.out, overwrite=args.overwrite,
                        fit_iterations=args.iterations)
     short = {k: v for k, v in summary.items() if k != "fit"}

@@ -23,7 +23,7 @@ def add_parser(sub) -> None:
         add_capture(p)
         p.add_argument("meshes", nargs="+", help="PLY/OBJ meshes in the radar's scene frame "
                                                  "(object name = file stem)")
-        add_out(p, "report folder")
+        add_out(p, "report folder", kind="folder")
         add_materials(p)
         add_pose(p)
         p.add_argument("--iterations", type=int, default=30, help="Adam steps per model")

@@ -16,7 +16,7 @@ def add_parser(sub) -> None:
     add_capture(p)
     p.add_argument("meshes", nargs="*", help="PLY/OBJ meshes in the radar's scene frame "
                                              "(object name = file stem)")
-    add_out(p, "report folder")
+    add_out(p, "report folder", kind="folder")
     p.add_argument("--scene", default="meshes", choices=["meshes", "corner"],
                    help="the meshes given, or (corner-reflector captures without a mesh) a "
                         "trihedral and a floor at the detected corner")

@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..paths.options import SolverOptions
 from .args import (FORMATTER, add_materials, add_out, add_pose, add_scaffold, add_solver,
-                   check_new, mesh_names, named, pose, scaffold_options, solver_options)
+                   mesh_names, named, pose, scaffold_options, solver_options)
 
 
 def add_parser(sub) -> None:
@@ -22,7 +22,7 @@ def add_parser(sub) -> None:
                                          "from a dense virtual array, scored against a clean mesh",
                        formatter_class=FORMATTER)
     p.add_argument("meshes", nargs="+", help="PLY/OBJ scene meshes (object name = file stem)")
-    add_out(p, "output folder (points.ply, metrics.json, occupancy.png)")
+    add_out(p, "output folder (points.ply, metrics.json, occupancy.png)", kind="folder")
     p.add_argument("--truth", action="append", metavar="MESH",
                    help="clean reference mesh(es), repeatable (default: the scene meshes)")
     add_materials(p)
@@ -78,6 +78,21 @@ def _dense_radar(args):
     return radar
 
 
+def _check_processing(args, radar) -> None:
+    """The processing settings, refused before the (long) render."""
+    checks = (("--percentile", 0 <= args.percentile < 100, "in [0, 100)"),
+              ("--tau", args.tau > 0, "> 0"), ("--points-per-m2", args.points_per_m2 > 0, "> 0"),
+              ("--dynamic-range-db", args.dynamic_range_db > 0, "> 0"),
+              ("--n-azimuth", args.n_azimuth >= radar.num_rx,
+               f">= the {radar.num_rx} azimuth elements"),
+              ("--n-elevation", args.n_elevation >= radar.num_tx,
+               f">= the {radar.num_tx} elevation elements"))
+    for flag, ok, what in checks:
+        if not ok:                                  # NaN fails every comparison
+            value = getattr(args, flag[2:].replace("-", "_"))
+            raise ConfigError(f"{flag} must be {what}, got {value}")
+
+
 def run(args) -> int:
     from ..compare.workflow import read_meshes as read_mesh_files
     from ..fit.fitted import load_fitted_scene
@@ -85,8 +100,9 @@ def run(args) -> int:
     from ..scaffold import prepare_scaffold
     from ..scene import load_scene
 
-    check_new(args.out, args.overwrite)
     radar = _dense_radar(args)
+    _check_processing(args, radar)
+    render = solver_options(args).to_dict()
     names = mesh_names(args.meshes)
     truth = mesh_names(args.truth) if args.truth else names
     read_meshes(truth)
@@ -99,7 +115,6 @@ def run(args) -> int:
                                   materials_smoothing=args.materials_smoothing)
     else:
         scene = load_scene(meshes, materials=materials, radar=radar)
-    render = solver_options(args).to_dict()
     res = occupancy(scene, radar, truth, render_options=render, n_azimuth=args.n_azimuth,
                     n_elevation=args.n_elevation, percentile=args.percentile, tau=args.tau,
                     min_intensity=args.min_intensity, dynamic_range_db=args.dynamic_range_db,

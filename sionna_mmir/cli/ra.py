@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import pathlib
 
-from .args import FORMATTER, add_capture, add_out, check_new
+from ..errors import FrameIndexError
+from .args import FORMATTER, add_capture, add_out, positive
 
 
 def add_parser(sub) -> None:
@@ -25,15 +26,14 @@ def run(args) -> int:
     from ..captures.loader import load_capture
     from ..plotting import save_ra_panels
     from ..processing.imaging import range_azimuth
-    from .args import positive
 
-    check_new(args.out, args.overwrite)
     positive(args.frames, "--frames")
     cap = load_capture(args.capture, calib_dir=args.calib_dir, sensor=args.sensor)
     first = args.frame or 0
     last = min(cap.num_frames, first + args.frames)
     if not 0 <= first < cap.num_frames:
-        raise IndexError(f"{args.capture}: frame {first} requested, capture has {cap.num_frames}")
+        raise FrameIndexError(f"{args.capture}: frame {first} requested, the capture has "
+                              f"{cap.num_frames} frame(s)")
     acc = None
     for f in tqdm(range(first, last), desc="RA frames", unit="frame", disable=last - first < 2):
         ra, ranges, az = range_azimuth(cap.frames[f], cap.radar, doppler=args.doppler)

@@ -11,8 +11,8 @@ import dataclasses
 
 from ..paths.options import SolverOptions
 from ..radar.config import RadarConfig
-from .args import (FORMATTER, add_materials, add_out, add_pose, add_solver, check_new, mesh_names,
-                   named, pose, positive, solver_options, triple)
+from .args import (FORMATTER, add_materials, add_out, add_pose, add_solver, mesh_names, named,
+                   noise_db, pose, positive, solver_options, speed, triple)
 
 
 def add_parser(sub) -> None:
@@ -55,18 +55,31 @@ def _radar(args):
     return dataclasses.replace(radar, **changes)
 
 
+def check_size(radar, frames: int) -> None:
+    """Refuse a render whose frames exceed the machine's memory (before rendering)."""
+    from ..utils.memory import array_bytes, check_memory, format_bytes
+    from .synth import WORK_FACTOR
+
+    adc = array_bytes((frames, *radar.adc_shape), 8)
+    check_memory(WORK_FACTOR * adc, f"--frames {frames} --chirps {radar.num_chirps}: "
+                                    f"{frames} frame(s) of {' x '.join(map(str, radar.adc_shape))} "
+                                    f"[tx, rx, chirp, sample] ({format_bytes(adc)} as complex64)")
+
+
 def run(args) -> int:
     from ..paths.render import render_capture
     from ..scene import load_scene
 
-    check_new(args.out, args.overwrite)
     positive(args.frames, "--frames")
+    noise_db(args.noise_db)
     names = mesh_names(args.meshes)
     materials = named(args.material, "--material", str)
-    velocities = named(args.velocity, "--velocity", lambda v: triple(v, "--velocity"))
-    radar = _radar(args)
-    scene = load_scene(names, materials=materials, radar=radar)
+    velocities = named(args.velocity, "--velocity",
+                       lambda v: speed(triple(v, "--velocity"), f"--velocity {v}"))
     options = solver_options(args, velocities=velocities or None)
+    radar = _radar(args)
+    check_size(radar, args.frames)
+    scene = load_scene(names, materials=materials, radar=radar)
     cap = render_capture(scene, radar, options, frames=args.frames, noise_db=args.noise_db,
                          metadata={"meshes": names, "materials": materials},
                          progress=args.frames > 1)

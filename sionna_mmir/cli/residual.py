@@ -23,7 +23,7 @@ def add_parser(sub) -> None:
     p.add_argument("--model", required=True,
                    help="base model: HDF5 capture of the fitted render, 'static' (mean over "
                         "frames) or 'none'")
-    add_out(p, "report folder")
+    add_out(p, "report folder", kind="folder")
     p.add_argument("--frames", default=None, metavar="A:B",
                    help="frame range of multi-frame captures (default: all)")
     p.add_argument("--calib-dir", default=None, help="ColoRadar calib folder")
@@ -65,8 +65,6 @@ def run(args) -> int:
     from ..residual.base_model import base_model
     from ..residual.report import write_report
 
-    if os.path.exists(args.out) and not args.overwrite:
-        raise FileExistsError(f"{args.out}: a report is already there (use --overwrite)")
     if args.folds < 2:
         raise ConfigError(f"--folds must be >= 2, got {args.folds}")
     if args.max_rounds < 0:

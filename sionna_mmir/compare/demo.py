@@ -148,6 +148,7 @@ def _write_demo_report(out, cap, adc_model, maps, summary, sides, fit_iterations
     """Write the report folder atomically (a temporary folder renamed)."""
     from ..captures.capture import Capture
     from ..plotting import save_ra_panels
+    from ..utils.atomic import current_umask
 
     ranges, az = maps["ranges"], maps["az"]
     parent = out.resolve().parent
@@ -170,6 +171,7 @@ def _write_demo_report(out, cap, adc_model, maps, summary, sides, fit_iterations
                               title="fitted corner scene")
             write_table(table_rows("corner", sides), str(tmp), "table2")
         (tmp / "report.md").write_text(_demo_markdown(summary, tmp, sides, fit_iterations))
+        os.chmod(tmp, 0o777 & ~current_umask())          # mkdtemp makes it 0700
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)

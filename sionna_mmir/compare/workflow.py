@@ -87,6 +87,9 @@ def load_inputs(req: FitRequest):
     from ..scaffold import prepare_scaffold
     from ..scene import load_scene
 
+    if os.path.exists(req.out) and not os.path.isdir(req.out):
+        raise ConfigError(f"{req.out}: exists and is not a folder (the output is a report "
+                          "folder); remove it or choose another name")
     if os.path.exists(req.out) and not (req.overwrite or req.resume):
         raise FileExistsError(f"{req.out}: report folder exists (use --overwrite or --resume)")
     if req.iterations < 1:

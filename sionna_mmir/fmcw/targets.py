@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputValueError
 from ..radar.config import SPEED_OF_LIGHT
 from .synthesize import synthesize_adc
 
@@ -37,11 +38,18 @@ def point_target_paths(radar, targets, origin=None):
         Delays ``[tx, rx, P]`` [s].
     tau_rate : numpy.ndarray
         Delay rates ``[tx, rx, P]`` [s/s] (``2 v / c``).
+
+    Raises
+    ------
+    InputValueError
+        A speed ``|v|`` not below the speed of light.
     """
     origin = np.zeros(3) if origin is None else np.asarray(origin, float)
     tx, rx = radar.tx_positions, radar.rx_positions
     a, tau, rate = [], [], []
     for R, az, el, v in targets:
+        if not abs(v) < SPEED_OF_LIGHT:
+            raise InputValueError(f"point target speed {v} m/s is not below the speed of light")
         az, el = np.radians(az), np.radians(el)
         u = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         x = origin + R * u

@@ -7,12 +7,11 @@ differs from the default:
 
 =====================  ======================================================
 ``SolverOptions()``    a general render: 20k random rays, depth 3, no pruning
-``.fit()``             one fit iteration: depth 2 and paths 60 dB under the
+``.fit()``             one fit iteration: depth 2 and paths 40 dB under the
                        strongest dropped (they are invisible in a min-max
                        range-azimuth loss, and a fit renders hundreds of times)
 ``.benchmark()``       the benchmark table's fits: facet quadrature, depth 3,
-                       paths 50 dB down dropped (10 dB under the truth's
-                       noise floor)
+                       paths 40 dB down dropped (the truth's noise floor)
 ``.truth()``           benchmark ground truths: facet quadrature, depth 3,
                        diffraction on, no pruning
 ``.dense()``           dense-aperture inference (paper Sec. 4.3): single
@@ -29,6 +28,8 @@ import dataclasses
 import math
 import numbers
 from typing import Any
+
+import numpy as np
 
 from ..errors import ConfigError
 
@@ -109,13 +110,13 @@ class SolverOptions:
     # ----------------------------------------------------------------- presets
     @classmethod
     def fit(cls, **changes) -> "SolverOptions":
-        """One fit iteration: depth 2, paths 60 dB down dropped."""
-        return cls(**{"max_depth": 2, "min_rel_power": 1e-6, **changes})
+        """One fit iteration: depth 2, paths 40 dB down dropped."""
+        return cls(**{"max_depth": 2, "min_rel_power": 1e-4, **changes})
 
     @classmethod
     def benchmark(cls, **changes) -> "SolverOptions":
-        """The benchmark table's fits: facets, depth 3, paths 50 dB down dropped."""
-        return cls(**{"sampling": "facets", "max_depth": 3, "min_rel_power": 1e-5, **changes})
+        """The benchmark table's fits: facets, depth 3, paths 40 dB down dropped."""
+        return cls(**{"sampling": "facets", "max_depth": 3, "min_rel_power": 1e-4, **changes})
 
     @classmethod
     def truth(cls, **changes) -> "SolverOptions":
@@ -203,3 +204,23 @@ def _validate(o: SolverOptions) -> None:
     if o.velocities is not None and not isinstance(o.velocities, dict):
         raise ConfigError(f"solver option velocities must be a dict object -> (vx, vy, vz), "
                           f"got {type(o.velocities).__name__}")
+    for name, v in (o.velocities or {}).items():
+        _check_velocity(f"velocities[{name!r}]", v)
+    if o.radar_velocity is not None:
+        _check_velocity("radar_velocity", o.radar_velocity)
+
+
+def _check_velocity(what: str, value) -> None:
+    """Three finite numbers [m/s] of a speed below the speed of light."""
+    from ..radar.config import SPEED_OF_LIGHT
+
+    try:
+        v = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        v = np.zeros(0)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ConfigError(f"solver option {what} must be three finite numbers [m/s], "
+                          f"got {value!r}")
+    if np.linalg.norm(v) >= SPEED_OF_LIGHT:
+        raise ConfigError(f"solver option {what}: speed {np.linalg.norm(v):.6g} m/s is not "
+                          f"below the speed of light ({SPEED_OF_LIGHT:.0f} m/s)")

@@ -157,7 +157,7 @@ class PathGeometry:
 
     The delay of path ``p`` between Tx ``t`` and Rx ``r`` is
     ``(|x_tx[p] - tx_t| + chain_tx[p] + |x_rx[p] - rx_r| + chain_rx[p]) / c``
-    (``x_tx`` is the unfolded image point of a mirror chain), so the paths
+    (``x_rx`` of a mirror chain is the receiver's unfolded image point), so the paths
     can be re-evaluated for moved elements (a pose offset) without tracing.
 
     Parameters

@@ -92,6 +92,8 @@ def render_capture(scene, radar=None, options: SolverOptions | None = None, *, f
     options = options or SolverOptions()
     if int(frames) < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")
+    if noise_db is not None and not (np.isfinite(noise_db) and abs(float(noise_db)) <= 300):
+        raise ConfigError(f"noise_db {noise_db}: expected a finite number of dB within +-300")
     solver, out, hits = RadarPathSolver(), [], []
     for f in tqdm(range(int(frames)), desc="render", unit="frame", disable=not progress):
         paths = solver(scene, radar, options, seed=int(options.seed) + f)

@@ -4,15 +4,14 @@ A strategy produces the first rays from the array's phase centre and says how
 the estimator weights them:
 
 :class:`RandomCone`
-    ``N`` cosine-weighted Monte Carlo directions in a cone
-    about boresight; ``pdf`` in [1/sr]; estimates divide by
-    ``N``; coherent chains continue at random (specular
-    with probability ``eta``) under Russian roulette
+    ``N`` cosine-weighted Monte Carlo directions in a cone about boresight;
+    ``pdf`` in [1/sr]; estimates divide by ``N``; coherent chains continue
+    at random (specular with probability ``eta``) under Russian roulette
 :class:`FacetQuadrature`
-    one ray to every (sub-)facet centroid in the cone,
-    weighted by the facet's solid angle (a deterministic
-    quadrature; ``pdf = 1 / Omega_s``); coherent chains
-    always continue and are never rouletted
+    one ray to a node of every (sub-)facet in the cone, weighted by the
+    facet's solid angle (a deterministic quadrature; ``pdf = 1 / Omega_s``);
+    coherent chains always continue and are never rouletted, and integrate
+    over the lit footprint of their cell (:mod:`.transport.aperture`)
 
 Rays are generated outside AD (the directions are samples, not parameters).
 """
@@ -24,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..utils.backend import init_backend
+from .transport.aperture import CutPolygons, LitAperture
+from .transport.clip_lines import clip_lines
 
 init_backend()
 
@@ -126,15 +127,29 @@ class RandomCone:
         """The region the first interaction integrates over (its triangle)."""
         return it.tri
 
+    def aperture(self, options, keep, face, tri, sub):
+        """No lit apertures: Monte Carlo rays sample the lit region."""
+        return None
+
+
+#: barycentric weights of a sub-facet's node on its corners: near the centroid
+#: (a midpoint rule) but off every symmetry line of the cell, so that the node
+#: of a symmetric scene (a corner reflector on its axis) is not traced exactly
+#: into a crease
+NODE_WEIGHTS = np.array([0.33, 0.35, 0.32])
+
 
 class FacetQuadrature:
-    """One ray to every (sub-)facet centroid in the cone (deterministic).
+    """One ray to a node of every (sub-)facet in the cone (deterministic).
 
     A facet too large for a linear phase across it (``k D^2 / R >=
     facet_fresnel``, ``D`` its longest edge, ``R`` the range of its nearest
     vertex) is split into ``n^2`` congruent sub-facets,
     ``n = ceil(sqrt(k D^2 / (R facet_fresnel)))`` (at most
-    ``max_facet_split``), each one ray and one exact triangle average.
+    ``max_facet_split``), each one ray (to the node :data:`NODE_WEIGHTS`) and
+    one exact triangle average.  A coherent chain of two or more bounces
+    integrates over the lit footprint of its node's cell on its last triangle
+    (:class:`~.transport.aperture.LitAperture`).
     """
 
     name = "facets"
@@ -150,7 +165,7 @@ class FacetQuadrature:
         return 1
 
     def candidates(self, geo, pose, centre, wavelength) -> Candidates:
-        """Rays from ``centre`` to every (sub-)facet centroid inside the cone."""
+        """Rays from ``centre`` to every (sub-)facet node inside the cone."""
         k_wave = 2.0 * math.pi / wavelength
         c = np.array([float(dr.detach(centre)[i][0]) for i in range(3)])
         rows = np.array([[float(r[i][0]) for i in range(3)] for r in pose.rows])
@@ -161,7 +176,8 @@ class FacetQuadrature:
         cr = np.cross(p1 - p0, p2 - p0)
         area = 0.5 * np.linalg.norm(cr, axis=1)
         nrm = cr / np.maximum(2 * area, 1e-30)[:, None]
-        cu, cv = uvs[:, :, 0].mean(1), uvs[:, :, 1].mean(1)
+        cu, cv = uvs[:, :, 0] @ NODE_WEIGHTS, uvs[:, :, 1] @ NODE_WEIGHTS
+        self._mesh = (V, F, fac, uvs, c)
         q = p0[fac] + cu[:, None] * (p1 - p0)[fac] + cv[:, None] * (p2 - p0)[fac]
         dq = q - c
         dq_n = np.linalg.norm(dq, axis=1)
@@ -173,6 +189,7 @@ class FacetQuadrature:
         origin = mi.Point3f(*(dr.full(mi.Float, float(v), n) for v in c))   # n may be 0
         direction = mi.Vector3f(mi.Float(dd[:, 0]), mi.Float(dd[:, 1]), mi.Float(dd[:, 2]))
         sub_uv = [mi.Float(uvs[:, k, j].astype(np.float32)) for k in range(3) for j in range(2)]
+        self._sub_uv = sub_uv
         return Candidates(origin, direction, mi.Float((1.0 / omega).astype(np.float32)),
                           mi.UInt32(fac.astype(np.uint32)), sub_uv)
 
@@ -217,6 +234,19 @@ class FacetQuadrature:
         P0, P1, P2 = it.tri
         e1, e2 = P1 - P0, P2 - P0
         return tuple(P0 + e1 * uv[2 * c] + e2 * uv[2 * c + 1] for c in range(3))
+
+    def aperture(self, options, keep, face, tri, sub):
+        """The :class:`~.transport.aperture.LitAperture` of the kept nodes
+        (``keep``: their candidate indices; ``face``, ``tri``: their first
+        triangles; ``sub``: their cells' corners), ``None`` without chains."""
+        if int(options.max_depth) < 2 or not options.coherent:
+            return None
+        V, F, fac, uvs, c = self._mesh
+        k = np.asarray(keep, dtype=np.int64)
+        cut = CutPolygons(c, V, F, fac[k], uvs[k], clip_lines(V, F))
+        sub_uv = [dr.gather(mi.Float, x, keep) for x in self._sub_uv]
+        return LitAperture(c, face, tuple(dr.detach(p) for p in tri),
+                           tuple(dr.detach(p) for p in sub), sub_uv, cut)
 
 
 def subfacet_cells(n: int) -> np.ndarray:

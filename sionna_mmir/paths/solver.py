@@ -16,8 +16,9 @@ call runs the transport stages of :mod:`.transport` in order:
 
 1. surface -- local geometry, deferred BSDF weight, materials;
 2. connection -- the shadow ray to the Tx;
-3. coherent -- the physical-optics field of specular chains (image theory
-   over the first surface);
+3. coherent -- the physical-optics field of specular chains (the exit
+   aperture on the last surface; under the facet quadrature clipped to
+   each node's lit footprint, :mod:`.transport.aperture`);
 4. scattered -- the BSDF speckle field and its reciprocal twin;
 5. continuation -- mirror or BSDF sample (or FSD diffraction), roulette,
    the next segment;
@@ -46,7 +47,7 @@ from .polarization import Field, transverse
 from .pose import Pose
 from .radar_paths import RadarPaths
 from .sampling import make_sampler
-from .transport import coherent, continuation, motion, scattered
+from .transport import aperture, coherent, continuation, motion, scattered
 from .transport.connection import connect
 from .transport.diffraction import fsd_setup
 from .transport.state import Emission, PathState, SolverContext, zeros
@@ -109,6 +110,7 @@ class RadarPathSolver(PathSolver):
             surf = at_surface(ctx, st, depth)
             conn = connect(ctx, st, surf)
             coherent.unfold(st, surf, depth)
+            aperture.clip(ctx, st, depth)
             emissions += self._emit(ctx, st, surf, conn, depth)
             if depth == opts.max_depth:
                 break
@@ -164,8 +166,10 @@ class RadarPathSolver(PathSolver):
         if ctx.options.diffraction:
             ctx.fsd = fsd_setup(geo, ctx.wavelength, ctx.options.fsd_width)
         it = geo.interaction(dr.full(mi.Bool, True, K), obj, face, u, v, tape)
-        it.tri = ctx.sampler.first_triangle(it, cands, keep)
-        return _start_state(ctx, it, pdf)
+        sub = ctx.sampler.first_triangle(it, cands, keep)
+        st = _start_state(ctx, it, pdf, sub)
+        st.aperture = ctx.sampler.aperture(ctx.options, keep, face, it.tri, sub)
+        return st
 
     def _emit(self, ctx, st, surf, conn, depth) -> list:
         """Paths ending at this depth: the coherent chain, the scattered
@@ -174,12 +178,12 @@ class RadarPathSolver(PathSolver):
         out = []
         C_re, C_im = zeros(K), zeros(K)
         if opts.coherent:
-            wr, wi, m = coherent.coherent_field(ctx, st, surf, conn)
+            wr, wi, m = coherent.coherent_field(ctx, st, surf, conn, depth)
             if depth == 1:
                 C_re += dr.select(m, wr, 0.0)
                 C_im += dr.select(m, wi, 0.0)
             else:
-                out.append(coherent.coherent_emission(st, wr, wi, m, conn.rate, depth))
+                out.append(coherent.coherent_emission(st, surf, wr, wi, m, conn.rate, depth))
         if opts.scattering:
             sc_re, sc_im = scattered.scattered_field(ctx, st, surf, conn)
             C_re += sc_re
@@ -192,8 +196,9 @@ class RadarPathSolver(PathSolver):
         return out
 
 
-def _start_state(ctx, it, pdf) -> PathState:
-    """The path state at the first interaction (width ``K``)."""
+def _start_state(ctx, it, pdf, tri1) -> PathState:
+    """The path state at the first interaction (width ``K``; ``tri1`` the
+    region the first interaction integrates over)."""
     K = dr.width(pdf)
     x1 = it.p
     cw_k = dr.zeros(mi.Point3f, K) + ctx.c_w
@@ -204,8 +209,8 @@ def _start_state(ctx, it, pdf) -> PathState:
     return PathState(it=it, E=Field(transverse(e_r, k0)), inv_p=dr.ones(mi.Float, K),
                      coh=dr.full(mi.Bool, True, K), beta=zeros(K), p_area=zeros(K),
                      chain=zeros(K), prev_p=cw_k, rate_chain=zeros(K), first_pdf=pdf, x1=x1,
-                     k0=k0, L0_det=L0_det, cw_k=cw_k, tri1=it.tri, x_img=x1, Lm=eye,
-                     obj1=it.obj)
+                     k0=k0, L0_det=L0_det, cw_k=cw_k, tri1=tri1,
+                     U=(eye, mi.Vector3f(0.0, 0.0, 0.0)), x_star=x1, obj1=it.obj)
 
 
 def _pattern(spec):

@@ -110,8 +110,9 @@ def load_capture_posed(req: LoopRequest):
     position, orientation = req.position, req.orientation
     if position is None and orientation is None:
         position, orientation = _run_pose(req) or (cap.radar.position, cap.radar.orientation)
-    radar = dataclasses.replace(cap.radar, position=tuple(position or (0.0, 0.0, 0.0)),
-                                orientation=tuple(orientation or (0.0, 0.0, 0.0)))
+    radar = dataclasses.replace(
+        cap.radar, position=tuple(np.zeros(3) if position is None else position),
+        orientation=tuple(np.zeros(3) if orientation is None else orientation))
     return dataclasses.replace(cap, radar=radar)
 
 
@@ -180,15 +181,15 @@ class Loop:
     # ------------------------------------------------------------ stages
     def prepare(self):
         """Load the capture and the scene, and restore a checkpoint to resume."""
-        if os.path.exists(self.tmp) and not self.req.resume:
-            shutil.rmtree(self.tmp)
-        os.makedirs(self.tmp, exist_ok=True)
         t0 = time.perf_counter()
         cap = load_capture_posed(self.req)
         scene, self.info = build_scene(self.req, cap)
         self.model = RadarModel(scene, cap, solver=self.req.solver,
                                 max_objects=self.req.max_objects)
         self.timings["load_s"] = time.perf_counter() - t0
+        if os.path.exists(self.tmp) and not self.req.resume:
+            shutil.rmtree(self.tmp)
+        os.makedirs(self.tmp, exist_ok=True)
         saved = self._load_state() if self.req.resume else None
         if saved is not None:
             self.model.restore(saved["model"])
@@ -324,8 +325,9 @@ class Loop:
 
 def run_loop(req: LoopRequest) -> dict:
     """Run (or resume) a loop and return its report (``report.json``)."""
-    loop = Loop(req).prepare()
+    loop = Loop(req)
     try:
+        loop.prepare()
         loop.fit_scene()
         loop.base()
         loop.diagnose()

@@ -71,8 +71,9 @@ def loop_document(loop) -> dict:
                           "unexplained": localise(model.ctx, a.residual_after, _noise(model)),
                           "params": a.params,
                           "candidates": [c.to_dict() for c in a.candidates]})
-    mismatch = dict(loop.scene_mismatch or {})
-    mismatch["adopted"] = [a["name"] for a in adoptions if a["side"] == "scene"]
+    mismatch = {"base_refinement": loop.scene_mismatch or {},
+                "final": loop.model.scene_mismatch(),
+                "adopted": [a["name"] for a in adoptions if a["side"] == "scene"]}
     return {"capture": str(loop.req.capture), "radar": loop.model.radar.name,
             "scene": loop.req.scene, "objects": list(loop.model.basis.names),
             "info": loop.info, "first": d.first, "final": d.final,

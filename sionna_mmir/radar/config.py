@@ -54,7 +54,7 @@ class RadarConfig:
     start_frequency : float
         Chirp start frequency ``f_0`` [Hz].
     slope : float
-        Chirp slope ``S`` [Hz/s].
+        Chirp slope ``S`` [Hz/s]; negative for a down-chirp, ``|S| >= MIN_SLOPE``.
     sample_rate : float
         Complex ADC sample rate ``f_s`` [Hz].
     num_samples : int
@@ -84,6 +84,9 @@ class RadarConfig:
     notes : tuple of str, optional
         Provenance notes (e.g. repaired config values).
     """
+
+    #: smallest chirp slope magnitude accepted [Hz/s] (1 MHz/ms)
+    MIN_SLOPE = 1e9
 
     start_frequency: float
     slope: float
@@ -122,8 +125,7 @@ class RadarConfig:
         if self.start_frequency <= 0 or self.sample_rate <= 0 or self.design_frequency <= 0:
             raise ConfigError("RadarConfig: start_frequency, sample_rate and "
                               "design_frequency must be positive")
-        if self.slope == 0:
-            raise ConfigError("RadarConfig.slope must be non-zero")
+        self._check_slope()
         if self.idle_time < 0 or self.adc_start_time < 0:
             raise ConfigError("RadarConfig: idle_time and adc_start_time must be >= 0")
         adc_end = self.adc_start_time + self.num_samples / self.sample_rate
@@ -145,6 +147,23 @@ class RadarConfig:
         self.orientation = np.asarray(self.orientation, dtype=np.float64).reshape(3)
         if not (np.all(np.isfinite(self.position)) and np.all(np.isfinite(self.orientation))):
             raise ConfigError("RadarConfig: position / orientation hold NaN or Inf")
+
+    def _check_slope(self) -> None:
+        """A chirp: ``|slope| >= MIN_SLOPE`` and a sweep that stays above 0 Hz.
+
+        Down-chirps (``slope < 0``) are supported (range processing mirrors
+        their bins), so the sign is free; a magnitude below ``MIN_SLOPE``
+        (1 MHz/ms) is no FMCW chirp, usually a slope given in MHz/us instead
+        of Hz/s.
+        """
+        if abs(self.slope) < self.MIN_SLOPE:
+            raise ConfigError(f"RadarConfig.slope = {self.slope:g} Hz/s: its magnitude must be "
+                              f">= {self.MIN_SLOPE:g} Hz/s (the slope is in Hz/s, e.g. 79e12 "
+                              f"for 79 MHz/us; negative for a down-chirp)")
+        end = self.start_frequency + self.slope * self.ramp_end_time
+        if end <= 0:
+            raise ConfigError(f"RadarConfig: the chirp sweeps below 0 Hz (start_frequency "
+                              f"{self.start_frequency:g} Hz + slope x ramp_end_time = {end:g} Hz)")
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -258,6 +277,8 @@ class RadarConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "RadarConfig":
         """Inverse of :meth:`to_dict`; unknown or missing keys raise ConfigError."""
+        if not isinstance(d, dict):
+            raise ConfigError(f"RadarConfig: expected a dict of fields, got {type(d).__name__}")
         names = {f.name for f in dataclasses.fields(cls)}
         required = {f.name for f in dataclasses.fields(cls)
                     if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING}

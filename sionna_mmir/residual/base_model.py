@@ -7,6 +7,8 @@ does not move) or ``"none"`` (effects explain everything).
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from ..captures.capture import Capture
@@ -46,6 +48,9 @@ def base_model(spec: str, cap: Capture, frames: slice):
                                   "(mean over frames)")
         return np.broadcast_to(y.mean(axis=0, keepdims=True), y.shape).copy(), \
             "static background (mean over frames)"
+    if not os.path.isfile(spec):
+        raise FileNotFoundError(f"{spec}: no such file (--model is an HDF5 render, 'static' "
+                                "or 'none')")
     model = Capture.load(spec)
     if not same_radar(model.radar, cap.radar):
         raise InputValueError(

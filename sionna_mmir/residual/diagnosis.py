@@ -189,6 +189,24 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
     return sorted(out, key=lambda c: c.score, reverse=True)
 
 
+def _restart(model: EffectModel, best: float, maxiter: int) -> float:
+    """Refit from a fresh start (zero values) the components that allow it
+    (e.g. a pose offset fitted before a sensor effect bent it); keep the
+    restart when the NLL drops.  Returns the model's NLL."""
+    for i, c in enumerate(model.components):
+        if not getattr(c.effect, "restartable", False):
+            continue
+        trial = model.copy()
+        trial.components[i].values = {k: np.array(s.init, copy=True)
+                                      for k, s in c.specs.items()}
+        trial.fit(maxiter=2 * maxiter)
+        nll = trial.nll()
+        if nll < best - 1e-6:
+            model.components, model.nuisance = trial.components, trial.nuisance
+            best = nll
+    return best
+
+
 def _backfit(model: EffectModel, newest, maxiter: int):
     """Re-initialise every earlier adopted effect against the current model
     without it, refit all jointly, and keep the change when the NLL drops.
@@ -202,6 +220,7 @@ def _backfit(model: EffectModel, newest, maxiter: int):
     newest component (the same object unless a trial replaced the list).
     """
     best = model.nll()
+    best = _restart(model, best, maxiter)
     for i in range(len(model.components)):
         if model.components[i] is newest or model.components[i].effect.kind == "basis":
             continue

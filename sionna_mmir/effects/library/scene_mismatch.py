@@ -142,12 +142,21 @@ class ObjectDelay(BasisEffect):
 
 
 class PoseOffset(BasisEffect):
-    """Radar pose offset against the mesh frame (6 parameters)."""
+    """Radar pose offset against the mesh frame (6 parameters).
+
+    Bounds: a LiDAR-to-radar alignment error of up to ``max_translation_m``
+    (5 cm) and ``max_rotation_deg`` (1 deg) per axis; a larger misplacement
+    is a wrong frame, which the loop reports as such (the scene explains
+    little of the capture) rather than fitting.
+    """
 
     name = "pose_offset"
     description = "radar pose against the mesh frame (translation, rotation)"
 
-    def __init__(self, max_translation_m: float = 0.2, max_rotation_deg: float = 3.0):
+    #: a fresh start (zero offset) is tried again at every joint refit
+    restartable = True
+
+    def __init__(self, max_translation_m: float = 0.05, max_rotation_deg: float = 1.0):
         self.max_t = float(max_translation_m)
         self.max_w = float(np.radians(max_rotation_deg))
 

@@ -7,6 +7,8 @@
 ``surface``         geometry, deferred BSDF weight and materials at ``x_l``
 ``connection``      the deterministic connection ``x_l -> Tx`` (visibility)
 ``coherent``        the physical-optics (Kirchhoff) field of specular chains
+``aperture``        the lit footprints of the facet quadrature's chains
+``clip_lines``      where a triangle's lit region ends (mesh topology)
 ``scattered``       the BSDF-scattered speckle field and its reciprocal twin
 ``continuation``    mirror / BSDF choice, Russian roulette, the next segment
 ``diffraction``     free-space diffraction (FSD) as a continuation event

@@ -7,20 +7,22 @@ mmIR BSDF (lobe sampling with the balance-heuristic mixture pdf); a path that
 scattered (or diffracted) once continues as a power-only (incoherent) path.
 Russian roulette ends paths from ``rr_depth`` on.  Under the facet
 quadrature coherent chains always continue and are never rouletted: a random
-choice would thin the first-surface integral at random (variance ~ the sum of
+choice would thin the quadrature's integral at random (variance ~ the sum of
 ``|terms|^2``, which dwarfs the stationary-phase sum); the scattered energy
 still reaches the Tx by next-event estimation at every interaction, and
 scatter-then-scatter chains are left out.
 
 The next segment is traced outside AD and rebuilt in AD; the area density of
 the next point of a coherent chain is ``p_A = pdf cos / L_unf^2`` (unfolded
-length).
+length).  A facet chain whose node's ray misses continues from a lit corner of
+its cell (:func:`.aperture.reaim`).
 """
 from __future__ import annotations
 
 from ...bsdf import mmwave
 from ...utils.backend import init_backend
 from ..polarization import mirror, polarization_fractions, reflect_field
+from . import aperture
 from .diffraction import diffract, gate_fsd
 from .motion import vertex_rate
 from .state import RAY_EPSILON
@@ -99,6 +101,8 @@ def _to_incoherent(ctx, st, surf, spec, scat, diff, pol_pow, p_spec) -> None:
     diffracts; specular steps of incoherent paths carry their power on."""
     base_coh = (st.E.power() * st.inv_p * surf.cos_in * st.it.area_ratio
                 / (dr.maximum(st.p_area, 1e-30) * ctx.n_est))
+    if st.lit is not None:          # the lit part of a facet node's footprint
+        base_coh = base_coh * st.lit
     st.beta = dr.select(scat & st.coh, base_coh, st.beta)
     if diff is not None:
         # diffracted lanes carry their power on (eval / (pdf * beta) = 1)
@@ -120,8 +124,9 @@ def _roulette(ctx, st, alive, pol_pow, depth: int):
 
 
 def _next_interaction(ctx, st, surf, k_next, alive, diff) -> None:
-    """Trace the next segment (detached), rebuild it in AD, update the
-    coherent area density and the chain's motion."""
+    """Trace the next segment (detached; a facet chain whose node's ray
+    misses continues from a lit corner, :func:`.aperture.reaim`), rebuild it
+    in AD, update the coherent area density and the chain's motion."""
     geo, tape = ctx.geo, ctx.tape
     x = surf.x
     with dr.suspend_grad():
@@ -129,7 +134,8 @@ def _next_interaction(ctx, st, surf, k_next, alive, diff) -> None:
         o2 = dr.detach(x) + dr.detach(surf.ng) * (RAY_EPSILON * side)
         if diff is not None:       # free-space diffraction passes the surface
             o2 = dr.select(diff, dr.detach(x) + dr.detach(k_next) * 1e-3, o2)
-        v2, ob2, fa2, uu, vv = geo.trace(o2, dr.detach(k_next), alive)
+        hit = geo.trace(o2, dr.detach(k_next), alive)
+    (v2, ob2, fa2, uu, vv), x = aperture.reaim(ctx, st, surf, hit, alive & st.coh & ~hit[0])
     # motion along the chain: vertex x moving with v contributes v.(u_in + u_out)
     st.rate_chain = st.rate_chain + vertex_rate(ctx.velocities, st.it.obj, surf.k_in, -k_next)
     st.prev_p = x

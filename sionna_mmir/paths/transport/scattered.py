@@ -45,8 +45,11 @@ def scattered_field(ctx, st, surf, conn):
     wi_t, wo_r = frame.to_local(conn.k_t), frame.to_local(-surf.k_in)
     eta_t = params.eta(dr.maximum(conn.cos_t, 0.0))
     f_sc = (1.0 - eta_t) * mmwave.eval(wi_t, wo_r, params)
-    base = dr.select(st.coh, st.E.power() * st.inv_p * surf.cos_in * st.it.area_ratio
-                     / (dr.maximum(st.p_area, 1e-30) * ctx.n_est), st.beta)
+    base_coh = (st.E.power() * st.inv_p * surf.cos_in * st.it.area_ratio
+                / (dr.maximum(st.p_area, 1e-30) * ctx.n_est))
+    if st.lit is not None:          # the lit part of a facet node's footprint
+        base_coh = base_coh * st.lit
+    base = dr.select(st.coh, base_coh, st.beta)
     P = dr.square(wavelength / (4.0 * math.pi)) * f_sc * conn.cos_t * base
     amp = dr.select(conn.ok, dr.sqrt(dr.maximum(P, 1e-36)), 0.0)
     phase = 2.0 * math.pi * ctx.rng.next_float32()

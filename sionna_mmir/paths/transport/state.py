@@ -114,12 +114,27 @@ class PathState:
         First interaction, first direction, first length (frozen), centre.
     tri1 : tuple
         Region the first interaction integrates over (triangle or sub-facet).
-    x_img : mi.Point3f
-        Image of ``x1`` through the chain's mirrors (unfolded chain).
-    Lm : list of mi.Vector3f
-        Columns of the linear part of the chain's mirror map.
+    U : tuple
+        ``(cols, off)``: the chain's mirrors before the current interaction,
+        ``U(y) = sum_c cols[c] y_c + off`` (three ``mi.Vector3f`` columns and
+        a ``mi.Vector3f``; ``U = M_1 .. M_{l-1}``, identity at depth 1, AD).
+    x_star : mi.Point3f
+        ``U(x_l)``: the current interaction unfolded to the receiver's side
+        (the receiver's image sees it there) [m].
+    plane : tuple or None
+        ``(n, x)`` of the current interaction, folded into ``U`` at the next.
     obj1 : mi.UInt32
         Object of the first interaction.
+    aperture : LitAperture or None
+        Lit region of the facet quadrature's chains (``None`` for random rays).
+    fan : tuple or None
+        ``(main, lane, extra)``: the lit footprint of the facet node's cell on
+        the current triangle as triangles with frozen barycentric corners,
+        areas and cell shares -- one per lane (``main``, eight ``mi.Float``)
+        plus the pieces of cut cells (``lane``, ``extra``); see
+        :func:`.aperture.clip`.  ``None`` for random rays.
+    lit : mi.Float or None
+        Lit fraction of the node's cell for the current chain (``None``: 1).
     """
 
     it: object
@@ -137,10 +152,14 @@ class PathState:
     L0_det: object
     cw_k: object
     tri1: tuple
-    x_img: object
-    Lm: list
+    U: tuple
+    x_star: object
     obj1: object = None
     pending: tuple | None = None
+    plane: tuple | None = None
+    aperture: object = None
+    fan: tuple | None = None
+    lit: object = None
 
     @property
     def width(self) -> int:
