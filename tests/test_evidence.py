@@ -165,3 +165,86 @@ def test_07_sensor_radar_and_cell_stems(tmp_path):
     assert load_cell(stem) == (None, None)
     assert {"table2", "full", "no_beam", "no_normals", "no_fsd", "single_bounce",
             "per_object"} <= set(VARIANTS)
+
+
+def _plate_spec():
+    import types
+
+    return types.SimpleNamespace(materials={"plate": "concrete"}), \
+        {"plate": square_plate([2.0, 0.0, 0.0], 0.6, 0, 1)}
+
+
+def test_08_transfer_carries_the_shape_not_the_residuals():
+    from sionna_mmir.compare.evidence import TABLE2, _transfer_mmir, mmir_model
+
+    spec, meshes = _plate_spec()
+    cascade = dataclasses.replace(RadarConfig.mmwcas(), num_samples=64)
+    awr = dataclasses.replace(RadarConfig.awr1843(), num_samples=64)
+    fitted = mmir_model(spec, meshes, cascade, TABLE2)
+    z = fitted.latents()
+    assert z["beam.tx.log_gain"].shape == (12,) and z["beam.rx.log_gain"].shape == (16,)
+    z["beam.tx.log_q_az"] = np.log([3.5])             # a fitted shape ...
+    z["beam.tx.log_gain"] = np.linspace(-0.5, 0.5, 12)  # ... and cascade-specific residuals
+    z["plate.materials"] = z["plate.materials"] + 0.3
+    before, z0, after, z1 = _transfer_mmir(spec, meshes, awr, TABLE2, z)
+    assert z0["beam.tx.log_q_az"] == pytest.approx(np.log(2.0))   # nominal shape before
+    assert z1["beam.tx.log_q_az"] == pytest.approx(np.log(3.5))   # the shape transfers
+    assert z1["beam.tx.log_gain"].shape == (3,) and not z1["beam.tx.log_gain"].any()
+    assert z1["beam.rx.log_gain"].shape == (4,) and not z1["beam.rx.log_gain"].any()
+    np.testing.assert_allclose(z1["plate.materials"], z["plate.materials"])   # scene physics
+    assert not np.allclose(z0["plate.materials"], z1["plate.materials"])
+    assert after.radar is awr and before.radar is awr
+
+
+def test_09_ablation_switches_change_the_model():
+    from sionna_mmir.compare.evidence import ABLATIONS, FULL, VARIANTS, mmir_model
+
+    spec, meshes = _plate_spec()
+    radar = dataclasses.replace(RadarConfig.awr1843(), num_samples=64)
+    models = {v.name: mmir_model(spec, meshes, radar, v) for v in ABLATIONS}
+    keys = {n: set(m.latents()) for n, m in models.items()}
+    full = models["full"]
+    assert full.options.diffraction and full.options.max_depth == 3
+    assert {"plate.normals", "plate.materials", "beam.tx.log_q_az"} <= keys["full"]
+    assert not any(k.startswith("beam.") for k in keys["no_beam"])
+    assert "plate.normals" not in keys["no_normals"]
+    assert not models["no_fsd"].options.diffraction
+    assert models["single_bounce"].options.max_depth == 1
+    n_vert = full.latents()["plate.materials"].shape[0]
+    assert n_vert > 1 and models["per_object"].latents()["plate.materials"].shape == (1, 6)
+    # every ablation is exactly one change away from the full model
+    for v in ABLATIONS[1:]:
+        diff = [f.name for f in dataclasses.fields(FULL)
+                if f.name != "name" and getattr(v, f.name) != getattr(FULL, f.name)]
+        assert len(diff) == 1, (v.name, diff)
+    assert VARIANTS["table2"].learn == ("materials", "beam")
+
+
+def _fake_results():
+    rows = []
+    for t, gap in (("mmir", 0.2), ("independent", -0.05)):
+        for i, s in enumerate(("a", "b")):
+            for m, base in (("table2", 0.7), ("sionna", 0.7)):
+                after = base + (gap if m == "table2" else 0.0) + 0.01 * i
+                rows.append({"truth": t, "scene": s, "model": m,
+                             "before": {"ra_correlation": 0.5}, "after": {"ra_correlation": after}})
+    return rows
+
+
+def test_10_evidence_tables_name_the_truth(tmp_path):
+    from sionna_mmir.compare.evidence_report import (cell_value, leader_notes, mean_std,
+                                                     summary_lines, write_rows)
+
+    res = _fake_results()
+    lines = summary_lines(res, ["table2", "sionna"], ["mmir", "independent", "sionna"],
+                          row_key="model", col_key="truth", col_label=lambda t: f"truth: {t}")
+    assert lines[0] == "| | truth: mmir | truth: independent | truth: sionna |"
+    assert "0.905 +/- 0.005 (n=2)" in lines[2] and "not run" in lines[2]
+    notes = leader_notes(res, ["mmir", "independent"])
+    assert "mmIR leads" in notes[0] and "Sionna RT leads" in notes[1]
+    assert cell_value(res, "after", truth="independent", scene="b", model="table2") == "0.660"
+    assert cell_value(res, "after", truth="sionna", scene="b", model="table2") == "-"
+    assert mean_std([1.0, float("nan"), 3.0]) == (2.0, 1.0, 2)
+    csv_path, json_path = write_rows(res, tmp_path, "t")
+    text = open(csv_path).read().splitlines()
+    assert text[0].startswith("truth,scene,model,before_ra_correlation") and len(text) == 9
