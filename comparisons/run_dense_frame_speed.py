@@ -66,9 +66,7 @@ def time_mmir(meshes, mats, radar) -> dict:
     t0 = time.perf_counter()
     scene = load_scene(meshes, materials=mats, radar=radar)
     out = {"load_s": time.perf_counter() - t0,
-           "triangles": int(sum(len(o.faces) for o in scene.mesh_objects.values())
-                            if hasattr(next(iter(scene.mesh_objects.values())), "faces")
-                            else -1)}
+           "triangles": int(sum(len(getattr(m, "faces", ())) for m in meshes.values()))}
     _, cold = dense_cube(scene, radar)
     _, warm = dense_cube(scene, radar)
     out.update(cold_frame_s=cold["frame_s"], **{f"warm_{k}": v for k, v in warm.items()})
@@ -98,13 +96,15 @@ def time_sionna(meshes, mats, radar, samples) -> dict:
 
 
 def markdown(rows, args, wall_s) -> list:
+    loads = ", ".join(f"{r['load_avg_before']:.1f}" for r in rows)
     lines = [
         f"# Dense-frame speed: {args.n} x {args.n} virtual array, mmIR vs Sionna RT (same run)",
         "",
         "Reproduce: `.venv/bin/python comparisons/run_dense_frame_speed.py --scenes "
         f"{args.scenes} --sionna-samples {args.sionna_samples}` (pytest: `-m benchmark "
         f"tests/test_dense_frame_speed.py`); {wall_s / 60:.1f} min on 2 CPU cores shared with "
-        "other jobs (timings are wall-clock and include that contention).",
+        "other jobs (timings are wall-clock and include that contention; 1-min load average "
+        f"when each scene started: {loads}).",
         "",
         "Frame = render (paths + ADC) + RAE cube 256 x 127 x 127. mmIR: depth 1, per-facet "
         "quadrature, paths 50 dB under the strongest dropped (the occupancy render setting), "
@@ -120,16 +120,12 @@ def markdown(rows, args, wall_s) -> list:
     for r in rows:
         m, s = r["mmir"], r["sionna"]
         sf = s.get("frame_s")
+        sionna = f"{sf:.2f}" if sf else "-"
         ratio = f"{sf / m['warm_frame_s']:.1f}x" if sf else s.get("error", "skipped")
-        lines.append(
-            f"| {r['scene']} | {m['warm_frame_s']:.2f} | {m['warm_paths_s']:.2f} | "
-            f"{m['warm_adc_s']:.2f} | {m['warm_rae_s']:.2f} | {m['cold_frame_s']:.2f} | "
-            f"{sf:.2f} | {s.get('build_s', float('nan')):.1f} | {ratio} | "
-            f"{'yes' if m['warm_frame_s'] <= 3.0 else 'no'} |" if sf else
-            f"| {r['scene']} | {m['warm_frame_s']:.2f} | {m['warm_paths_s']:.2f} | "
-            f"{m['warm_adc_s']:.2f} | {m['warm_rae_s']:.2f} | {m['cold_frame_s']:.2f} | "
-            f"- | {s.get('build_s', float('nan')):.1f} | {ratio} | "
-            f"{'yes' if m['warm_frame_s'] <= 3.0 else 'no'} |")
+        lines.append(f"| {r['scene']} | {m['warm_frame_s']:.2f} | {m['warm_paths_s']:.2f} | "
+                     f"{m['warm_adc_s']:.2f} | {m['warm_rae_s']:.2f} | {m['cold_frame_s']:.2f} | "
+                     f"{sionna} | {s.get('build_s', float('nan')):.1f} | {ratio} | "
+                     f"{'yes' if m['warm_frame_s'] <= 3.0 else 'no'} |")
     return lines
 
 
@@ -139,7 +135,8 @@ def main(argv=None) -> int:
     rows = []
     for name in a.scenes.split(","):
         meshes, mats, radar = _setup(name, a.n)
-        row = {"scene": name, "mmir": time_mmir(meshes, mats, radar)}
+        row = {"scene": name, "load_avg_before": os.getloadavg()[0],
+               "mmir": time_mmir(meshes, mats, radar)}
         row["sionna"] = ({"skipped": True} if a.skip_sionna
                          else time_sionna(meshes, mats, radar, a.sionna_samples))
         print(json.dumps(row, default=float), flush=True)
