@@ -19,7 +19,7 @@ import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-DEFAULT_SCENES = "hallway,parking_lot,building_corner"
+DEFAULT_SCENES = "parking_lot,building_corner"
 CHANGES = {
     "full": "full model: materials + normals + beams learned, FSD on, depth 3",
     "no_beam": "beams not learned (default cos^q shape, no residuals)",

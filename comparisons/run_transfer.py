@@ -37,11 +37,22 @@ def _args(argv):
     p.add_argument("--cache", default=DEFAULT_CACHE)
     p.add_argument("--out", default=HERE)
     p.add_argument("--stem", default="transfer")
+    p.add_argument("--only-ready", action="store_true",
+                   help="skip cells whose cascade fit or AWR1843 truth is not cached yet "
+                        "(for running beside run_cross_truth.py)")
     p.add_argument("--table-only", action="store_true")
     return p.parse_args(argv)
 
 
-def run(truths, scenes, budget, cache, table_only=False) -> list:
+def _ready(truth, scene, model, budget, cache) -> bool:
+    from sionna_mmir.compare.evidence import cell_stem
+    from sionna_mmir.compare.truths import truth_path
+
+    return (os.path.exists(cell_stem(cache, "fit", truth, scene, model, budget) + ".json")
+            and os.path.exists(truth_path(cache, truth, scene, "awr1843")))
+
+
+def run(truths, scenes, budget, cache, table_only=False, only_ready=False) -> list:
     """All transfer cells (each needs its cascade fit and the AWR1843 truth)."""
     from sionna_mmir.compare.evidence import cell_stem, load_cell, run_cell
 
@@ -50,6 +61,8 @@ def run(truths, scenes, budget, cache, table_only=False) -> list:
         for scene in scenes:
             for model in MODELS:
                 res, _ = load_cell(cell_stem(cache, "transfer", truth, scene, model, budget))
+                if only_ready and res is None and not _ready(truth, scene, model, budget, cache):
+                    continue
                 if res is None and not table_only:
                     t0 = time.perf_counter()
                     try:
@@ -133,7 +146,7 @@ def main(argv=None) -> int:
     truths, scenes = a.truths.split(","), a.scenes.split(",")
     budget = Budget(iterations=a.iterations)
     t0 = time.perf_counter()
-    results = run(truths, scenes, budget, a.cache, a.table_only)
+    results = run(truths, scenes, budget, a.cache, a.table_only, a.only_ready)
     wall = time.perf_counter() - t0
     write_rows(results, a.out, a.stem)
     lines = markdown(results, truths, scenes, budget, wall)

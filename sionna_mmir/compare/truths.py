@@ -39,10 +39,10 @@ from ..errors import ConfigError
 TRUTHS = ("mmir", "sionna", "independent")
 SENSORS = ("cascade", "awr1843")
 #: Sionna truth rays per Tx element (depth 3).  Cascade (12 sources x 16
-#: targets): 200k, the most under ~8 GB (classroom, the largest scene: peak
-#: RSS 8.0 GB in 20 s; 300k: 10.4 GB); AWR1843 (3 x 4): Sionna's default 1M
-#: (2.7 GB, 9 s).
-SIONNA_TRUTH_SAMPLES = {"cascade": 200_000, "awr1843": 1_000_000}
+#: targets): 100k, 3.3x the fits' 30k and the most that leaves room for other
+#: jobs on a 23 GB machine (classroom, the largest scene: peak RSS 8.0 GB at
+#: 200k); AWR1843 (3 x 4): Sionna's default 1M (2.7 GB, 9 s).
+SIONNA_TRUTH_SAMPLES = {"cascade": 100_000, "awr1843": 1_000_000}
 #: receiver noise under the peak ADC sample [dB] (as the benchmark truth)
 NOISE_DB = -40.0
 
