@@ -76,7 +76,14 @@ ABLATIONS = (
     dataclasses.replace(FULL, name="single_bounce", max_depth=1),
     dataclasses.replace(FULL, name="per_object", materials_per="object"),
 )
-VARIANTS = {v.name: v for v in (TABLE2,) + ABLATIONS}
+#: the same ablations from the full model without FSD (the base when a fit
+#: with FSD does not fit in memory: the full model's FSD at depth 3 on the
+#: parking lot peaked above 16 GB)
+NO_FSD = dataclasses.replace(FULL, name="no_fsd", diffraction=False)
+ABLATIONS_NO_FSD = (NO_FSD,) + tuple(
+    dataclasses.replace(v, name=f"no_fsd+{v.name}", diffraction=False)
+    for v in ABLATIONS if v.name not in ("full", "no_fsd"))
+VARIANTS = {v.name: v for v in (TABLE2,) + ABLATIONS + ABLATIONS_NO_FSD}
 
 
 @dataclasses.dataclass(frozen=True)

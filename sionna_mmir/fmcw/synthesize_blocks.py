@@ -55,7 +55,7 @@ SIGMA = 2
 #: default block length [m] (20 lambda/2 at 77 GHz), Taylor order and kernel
 #: width: on the dense 100 x 100 hallway frame (155k paths) 2.4 % relative ADC
 #: error, RAE power cube correlation 0.99999 with the exact synthesis
-#: (``benchmarks/results_dense_frame.md``)
+#: (the error bound: :func:`taylor_bound`, checked in ``tests/test_evidence.py``)
 BLOCK_LENGTH, DEFAULT_ORDER, DEFAULT_WIDTH = 20 * SPEED_OF_LIGHT / 77e9 / 2, 0, 3
 
 
