@@ -102,7 +102,7 @@ def markdown(results, truth, scenes, variants, budget, wall_s) -> list:
         sps = [r.get("s_per_it") for r in sel]
         lines.append(f"| {v} | {CHANGES.get(v, v)} | "
                      f"{fmt_ms([metric(r, 'before') for r in sel])} | "
-                     f"{fmt_ms([metric(r, 'after') for r in sel])} | {fmt_ms(gain, '{:+.3f}')} | "
+                     f"{fmt_ms([metric(r, 'after') for r in sel])} | {fmt_ms(gain, '{:+.3f}', '{:.3f}')} | "
                      f"{fmt_ms([metric(r, 'after', 'ra_psnr') for r in sel], '{:.2f}')} | "
                      f"{fmt_ms(sps, '{:.1f}')} |")
     lines += ["", "Per scene, RA corr after fitting (before):", "",

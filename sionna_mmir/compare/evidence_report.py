@@ -40,10 +40,11 @@ def mean_std(values) -> tuple:
     return float(x.mean()), float(x.std()), int(x.size)
 
 
-def fmt_ms(values, fmt: str = "{:.3f}") -> str:
-    """``"m +/- s"`` of ``values`` (``"n/a"`` when none is finite)."""
+def fmt_ms(values, fmt: str = "{:.3f}", sd_fmt: str | None = None) -> str:
+    """``"m +/- s"`` of ``values`` (``"n/a"`` when none is finite); ``sd_fmt``
+    formats ``s`` (default ``fmt``)."""
     m, s, n = mean_std(values)
-    return "n/a" if n == 0 else f"{fmt.format(m)} +/- {fmt.format(s)}"
+    return "n/a" if n == 0 else f"{fmt.format(m)} +/- {(sd_fmt or fmt).format(s)}"
 
 
 def metric(result: dict, stage: str, key: str = "ra_correlation") -> float:
