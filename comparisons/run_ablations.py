@@ -74,16 +74,17 @@ def run(truth, scenes, variants, budget, cache, table_only=False) -> list:
 
 
 def markdown(results, truth, scenes, variants, budget, wall_s) -> list:
-    from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, fmt_ms, metric,
-                                                     pick)
+    from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, compute_minutes,
+                                                     fmt_ms, metric, pick)
 
     lines = [
         "# Ablations (paper supplement C.4): one change at a time from the full model",
         "",
         "Reproduce: `.venv/bin/python comparisons/run_ablations.py "
-        f"--iterations {budget.iterations} --scenes {','.join(scenes)} --truth {truth}` "
-        f"(cells cached; {wall_s / 60:.0f} min for the cells this invocation computed, 2 shared "
-        "CPU cores).",
+        f"--iterations {budget.iterations} --scenes {','.join(scenes)} --truth {truth} "
+        f"--variants {','.join(variants)}` (cells cached; the cells took "
+        f"{compute_minutes(results):.0f} min of wall time in all, on 2 CPU cores shared with "
+        "other jobs).",
         "",
         f"Truth (every figure below is scored against it): `{truth}`, {TRUTH_LABELS[truth]}.",
         "",
@@ -102,7 +103,8 @@ def markdown(results, truth, scenes, variants, budget, wall_s) -> list:
         sps = [r.get("s_per_it") for r in sel]
         lines.append(f"| {v} | {CHANGES.get(v, v)} | "
                      f"{fmt_ms([metric(r, 'before') for r in sel])} | "
-                     f"{fmt_ms([metric(r, 'after') for r in sel])} | {fmt_ms(gain, '{:+.3f}', '{:.3f}')} | "
+                     f"{fmt_ms([metric(r, 'after') for r in sel])} | "
+                     f"{fmt_ms(gain, '{:+.3f}', '{:.3f}')} | "
                      f"{fmt_ms([metric(r, 'after', 'ra_psnr') for r in sel], '{:.2f}')} | "
                      f"{fmt_ms(sps, '{:.1f}')} |")
     lines += ["", "Per scene, RA corr after fitting (before):", "",

@@ -70,15 +70,18 @@ def run(truths, scenes, budget, cache, table_only=False, models=MODELS) -> list:
 
 
 def markdown(results, truths, scenes, budget, wall_s) -> list:
-    from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, leader_notes,
+    from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, compute_minutes,
+                                                     leader_notes,
                                                      per_scene_lines, summary_lines)
 
     lines = [
         "# Cross-truth Table 2: mmIR and Sionna RT fitted to three independent truths",
         "",
         "Reproduce: `.venv/bin/python comparisons/run_cross_truth.py "
-        f"--iterations {budget.iterations}` (cells cached; {wall_s / 60:.0f} min for the cells "
-        "this invocation computed, 2 shared CPU cores).",
+        f"--iterations {budget.iterations} --scenes {','.join(scenes)} "
+        f"--truths {','.join(truths)}` "
+        f"(cells cached; the cells took {compute_minutes(results):.0f} min of wall time in all, "
+        "one interpreter each, on 2 CPU cores shared with other jobs).",
         "",
         f"Budget (both models, every cell): {budget.iterations} Adam iterations, lr "
         f"{budget.lr} (cosine), min-max RA loss, fit seed {budget.seed}; the LiDAR-like "
@@ -105,8 +108,9 @@ def markdown(results, truths, scenes, budget, wall_s) -> list:
     for t in truths:
         for m, lab in (("table2", "mmIR"), ("sionna", "Sionna RT")):
             cols.append((f"{lab} [truth: {t}]",
-                         lambda sel, t=t, m=m: (f"{cell_value(sel, 'after', truth=t, model=m)} "
-                                                f"({cell_value(sel, 'before', truth=t, model=m)})")))
+                         lambda sel, t=t, m=m: (
+                             f"{cell_value(sel, 'after', truth=t, model=m)} "
+                             f"({cell_value(sel, 'before', truth=t, model=m)})")))
     lines += ["", "## Per scene: RA corr after fitting (before)", ""]
     lines += per_scene_lines(results, scenes, cols)
     return lines

@@ -98,16 +98,19 @@ def _verdict(results, truths) -> list:
 
 
 def markdown(results, truths, scenes, budget, wall_s) -> list:
-    from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, per_scene_lines,
+    from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, compute_minutes,
+                                                     per_scene_lines,
                                                      summary_lines)
 
     lines = [
         "# Cross-sensor transfer (Table 3): fit on the MMWCAS cascade, render the AWR1843",
         "",
         "Reproduce: `.venv/bin/python comparisons/run_transfer.py "
-        f"--iterations {budget.iterations}` (reuses the cascade fits of "
-        f"`run_cross_truth.py`; {wall_s / 60:.0f} min for the cells this invocation computed, "
-        "2 shared CPU cores).",
+        f"--iterations {budget.iterations} --scenes {','.join(scenes)} "
+        f"--truths {','.join(truths)}` "
+        "(reuses the cascade fits of `run_cross_truth.py`; the transfer cells took "
+        f"{compute_minutes(results):.0f} min of wall time in all, on 2 CPU cores shared with "
+        "other jobs).",
         "",
         f"Budget: the cross-truth fits ({budget.iterations} Adam iterations, lr {budget.lr}, "
         "min-max RA loss) on the cascade; nothing is fitted on the AWR1843. AWR1843 pose: the "
@@ -131,8 +134,9 @@ def markdown(results, truths, scenes, budget, wall_s) -> list:
     for t in truths:
         for m, lab in (("table2", "mmIR"), ("sionna", "Sionna RT")):
             cols.append((f"{lab} [truth: {t}] before -> after",
-                         lambda sel, t=t, m=m: (f"{cell_value(sel, 'before', truth=t, model=m)} "
-                                                f"-> {cell_value(sel, 'after', truth=t, model=m)}")))
+                         lambda sel, t=t, m=m: (
+                             f"{cell_value(sel, 'before', truth=t, model=m)} "
+                             f"-> {cell_value(sel, 'after', truth=t, model=m)}")))
     lines += ["", "## Per scene: AWR1843 RA corr before -> after", ""]
     lines += per_scene_lines(results, scenes, cols)
     return lines

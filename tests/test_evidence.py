@@ -242,6 +242,7 @@ def test_10_evidence_tables_name_the_truth(tmp_path):
     assert "0.905 +/- 0.005 (n=2)" in lines[2] and "not run" in lines[2]
     notes = leader_notes(res, ["mmir", "independent"])
     assert "mmIR leads" in notes[0] and "Sionna RT leads" in notes[1]
+    assert "2 paired scenes" in notes[0] and "mmIR 0.905, best on 2" in notes[0]
     assert cell_value(res, "after", truth="independent", scene="b", model="table2") == "0.660"
     assert cell_value(res, "after", truth="sionna", scene="b", model="table2") == "-"
     assert mean_std([1.0, float("nan"), 3.0]) == (2.0, 1.0, 2)

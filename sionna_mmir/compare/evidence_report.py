@@ -123,18 +123,32 @@ def write_rows(results: list, out_dir: str, stem: str, stages=("before", "after"
 
 def leader_notes(results: list, truths: list, models=("table2", "sionna"),
                  stage: str = "after") -> list:
-    """One line per truth: which model leads the mean RA corr, and by how much."""
+    """One line per truth: which model leads the mean RA corr, and by how much.
+
+    Means are taken over the scenes every model has a result for (paired), so
+    a missing cell cannot tilt the comparison.
+    """
     out = []
     for t in truths:
-        means = {m: mean_std([metric(r, stage) for r in pick(results, truth=t, model=m)])
-                 for m in models}
-        done = {m: v for m, v in means.items() if v[2]}
-        if len(done) < 2:
-            out.append(f"- truth `{t}`: not all models run")
+        per_model = {m: {r["scene"]: metric(r, stage) for r in pick(results, truth=t, model=m)}
+                     for m in models}
+        scenes = sorted(set.intersection(*(set(v) for v in per_model.values())))
+        if not scenes:
+            out.append(f"- truth `{t}`: no scene with every model run")
             continue
-        best = max(done, key=lambda m: done[m][0])
-        rest = [m for m in done if m != best]
-        gap = done[best][0] - max(done[m][0] for m in rest)
-        out.append(f"- truth `{t}`: {model_label(best)} leads the mean RA corr by "
-                   f"{gap:.3f} ({', '.join(f'{model_label(m)} {v[0]:.3f}' for m, v in done.items())})")
+        means = {m: float(np.mean([v[s] for s in scenes])) for m, v in per_model.items()}
+        best = max(means, key=means.get)
+        gap = means[best] - max(v for m, v in means.items() if m != best)
+        wins = {m: sum(per_model[m][s] >= max(per_model[k][s] for k in models) for s in scenes)
+                for m in models}
+        out.append(f"- truth `{t}` ({len(scenes)} paired scenes): {model_label(best)} leads the "
+                   f"mean RA corr by {gap:.3f} ("
+                   + ", ".join(f"{model_label(m)} {means[m]:.3f}, best on {wins[m]}"
+                               for m in models)
+                   + ")")
     return out
+
+
+def compute_minutes(results: list) -> float:
+    """Sum of the cells' wall times [min] (each cell ran in its own interpreter)."""
+    return float(sum(float(r.get("wall_s", 0.0)) for r in results)) / 60.0
