@@ -530,6 +530,23 @@ def coloradar_range_fft(adc, radar: RadarConfig, calib_dir, sensor: str = "casca
     return subtract_coupling(spec, coupling)
 
 
+def _quaternion_matrix(q) -> np.ndarray:
+    """Rotation matrix of a quaternion ``(qx, qy, qz, qw)`` (normalised first)."""
+    x, y, z, w = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def euler_from_matrix(R) -> tuple:
+    """``(yaw, pitch, roll)`` [rad] of ``R = Rz(yaw) Ry(pitch) Rx(roll)``
+    (:func:`sionna_mmir.radar.config.rotation_matrix`'s convention)."""
+    R = np.asarray(R, dtype=float)
+    return (float(np.arctan2(R[1, 0], R[0, 0])),
+            float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0))),
+            float(np.arctan2(R[2, 1], R[2, 2])))
+
+
 def coloradar_pose(calib_dir, sensor: str = "cascade"):
     """The sensor's pose from ``<calib_dir>/transforms/base_to_<sensor>.txt``.
 
@@ -548,11 +565,52 @@ def coloradar_pose(calib_dir, sensor: str = "cascade"):
     if not os.path.exists(path):
         return None
     t, q = read_transform(path)
-    x, y, z, w = q / np.linalg.norm(q)
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-    yaw = float(np.arctan2(R[1, 0], R[0, 0]))
-    pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
-    roll = float(np.arctan2(R[2, 1], R[2, 2]))
-    return tuple(float(v) for v in t), (yaw, pitch, roll)
+    return tuple(float(v) for v in t), euler_from_matrix(_quaternion_matrix(q))
+
+
+def colocated_pose(position, orientation, calib_dir, sensor: str = "single_chip",
+                   reference: str = "cascade"):
+    """Pose of ``sensor`` when ``reference`` sits at ``(position, orientation)``.
+
+    The mounting of both sensors on the ColoRadar rig
+    (``transforms/base_to_<sensor>.txt``) gives ``sensor``'s pose relative to
+    ``reference``: offset ``d = R_ref^T (t_sensor - t_ref)`` and rotation
+    ``R_ref^T R_sensor`` in the reference radar's frame.  Composed with the
+    reference's pose: ``p = position + R d``, ``R_sensor = R R_ref^T R_sensor``
+    (``R`` = :func:`~sionna_mmir.radar.config.rotation_matrix` of
+    ``orientation``).
+
+    Parameters
+    ----------
+    position : array_like
+        ``(3,)`` reference radar position [m].
+    orientation : array_like
+        ``(3,)`` reference ``(yaw, pitch, roll)`` [rad].
+    calib_dir : str or os.PathLike
+        ColoRadar calibration folder (with ``transforms/``).
+    sensor, reference : {"cascade", "single_chip"}
+        The sensor to place and the one whose pose is given.
+
+    Returns
+    -------
+    tuple
+        ``(position (3,) ndarray [m], orientation (yaw, pitch, roll) [rad])``.
+
+    Raises
+    ------
+    ConfigError
+        A transform file is missing or unreadable, or an unknown sensor.
+    """
+    from ..radar.config import rotation_matrix
+
+    poses = {}
+    for name in (sensor, reference):
+        path = os.path.join(os.fspath(calib_dir), "transforms", f"base_to_{_check_sensor(name)}.txt")
+        if not os.path.exists(path):
+            raise ConfigError(f"{path}: file not found (needed for the {name} mounting)")
+        t, q = read_transform(path)
+        poses[name] = (t, _quaternion_matrix(q))
+    (t_s, R_s), (t_r, R_r) = poses[sensor], poses[reference]
+    R = rotation_matrix(orientation)
+    p = np.asarray(position, dtype=float) + R @ (R_r.T @ (t_s - t_r))
+    return p, euler_from_matrix(R @ R_r.T @ R_s)

@@ -16,8 +16,12 @@ import numpy as np
 
 def render_ground_truth(spec, *, seed: int = 0, num_rays: int = 100_000, max_depth: int = 3,
                         frames: int = 1, noise_db: float = -40.0, max_edge: float = 0.25,
-                        sampling: str = "random"):
-    """Return a :class:`~sionna_mmir.captures.Capture` of ``spec``'s ground truth."""
+                        sampling: str = "random", radar=None):
+    """Return a :class:`~sionna_mmir.captures.Capture` of ``spec``'s ground truth.
+
+    ``radar``: the posed radar to render (default :func:`scene_radar`, the
+    cascade at the scene's pose).
+    """
     import mitsuba as mi
 
     from ..captures.capture import Capture
@@ -25,7 +29,7 @@ def render_ground_truth(spec, *, seed: int = 0, num_rays: int = 100_000, max_dep
     from ..scene import load_scene
     from ..benchmark_scenes import true_materials
 
-    radar = scene_radar(spec)
+    radar = scene_radar(spec) if radar is None else radar
     clean = spec.refined(max_edge)
     scene = load_scene(clean, materials=spec.materials, radar=radar)
     truth = true_materials(spec, seed=seed, objects=clean)

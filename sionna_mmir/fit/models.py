@@ -69,12 +69,17 @@ class MMIRModel:
         height, pitch and roll are barely observable from it;
         an alignment fit to RA maps learns ``("x", "y",
         "yaw")`` and keeps the others at their values
+    materials_per : {"vertex", "object"}, optional
+        ``"vertex"`` (default): six parameters per vertex;
+        ``"object"``: six per object, shared by all its vertices
+        (the latent is ``[1, 6]``, initialised with the mean
+        of the vertices' latents)
     """
 
     def __init__(self, scene, radar=None, *, learn=("materials", "normals", "beam"),
                  tx_pattern=None, rx_pattern=None, solver_options=None,
                  normals_smoothing: float = 0.0, materials_smoothing: float = 0.0,
-                 pose_dofs: tuple = POSE_DOFS):
+                 pose_dofs: tuple = POSE_DOFS, materials_per: str = "vertex"):
         from ..paths import RadarPathSolver, SolverOptions
         from ..radio_devices import CosinePowerPattern
 
@@ -92,6 +97,12 @@ class MMIRModel:
                               f"got {tuple(pose_dofs)}")
         #: 1 for the pose components that move (position, orientation)
         self._pose_mask = np.array([d in pose_dofs for d in POSE_DOFS], dtype=np.float64)
+        if materials_per not in ("vertex", "object"):
+            raise ConfigError(f"MMIRModel: materials_per must be 'vertex' or 'object', "
+                              f"got {materials_per!r}")
+        if materials_per == "object" and materials_smoothing > 0:
+            raise ConfigError("MMIRModel: materials_smoothing needs per-vertex materials")
+        self.materials_per = materials_per
         self.tx_pattern = tx_pattern or CosinePowerPattern(n_elements=self.radar.num_tx)
         self.rx_pattern = rx_pattern or CosinePowerPattern(n_elements=self.radar.num_rx)
         #: latent key -> LaplacianParam (handles are the smoothed fields, see pullback)
@@ -117,7 +128,10 @@ class MMIRModel:
         z = {}
         for name, obj in self.scene.mesh_objects.items():
             if "materials" in self.learn:
-                z[f"{name}.materials"] = reparam.to_latent(np.array(obj.vertex_materials))
+                zm = reparam.to_latent(np.array(obj.vertex_materials))
+                if self.materials_per == "object":
+                    zm = zm.mean(axis=0, keepdims=True)
+                z[f"{name}.materials"] = zm
             if "normals" in self.learn:
                 z[f"{name}.normals"] = np.array(obj.vertex_normals, dtype=np.float64)
             if "positions" in self.learn:
@@ -172,8 +186,11 @@ class MMIRModel:
             k = f"{name}.materials"
             if k in z:
                 t = var(k, z[k])
-                n = z[k].shape[0]
-                obj.vertex_materials = mi.TensorXf(reparam.to_physical_dr(t.array, n), (n, 6))
+                n = obj.vertex_positions.shape[0]
+                flat = t.array
+                if z[k].shape[0] != n:        # per-object latent [1, 6]: every vertex shares it
+                    flat = dr.gather(mi.Float, flat, dr.arange(mi.UInt32, n * 6) % 6)
+                obj.vertex_materials = mi.TensorXf(reparam.to_physical_dr(flat, n), (n, 6))
             k = f"{name}.normals"
             if k in z:
                 obj.vertex_normals = var(k, z[k])

@@ -14,7 +14,8 @@ extruded over its elevation beam), scored by :func:`score` against the same
 reference.  Render defaults (:data:`DENSE_RENDER`): single bounce
 (``max_depth=1``, as the paper at test time), deterministic per-facet
 quadrature (``sampling="facets"``) and paths pruned 50 dB under the strongest
-(``min_rel_power=1e-5``), no diffraction.
+(``min_rel_power=1e-5``), no diffraction; the dense frame's ADC by the
+block-pair spread (:mod:`sionna_mmir.fmcw.synthesize_blocks`).
 """
 from __future__ import annotations
 
@@ -36,6 +37,8 @@ from .point_cloud import (DEFAULT_DYNAMIC_RANGE_DB, DEFAULT_PERCENTILE, PointClo
 
 #: Solver options of the dense-array render (module docstring).
 DENSE_RENDER = {"max_depth": 1, "sampling": "facets", "min_rel_power": 1e-5, "seed": 0}
+#: ADC synthesis choices of :func:`render_adc`
+SYNTHESES = ("exact", "blocks")
 
 
 @dataclass
@@ -104,7 +107,8 @@ def as_scene(scene, materials: dict | None = None):
     return scene if isinstance(scene, RadarScene) else load_scene(scene, materials=materials)
 
 
-def render_adc(scene, radar, render_options: dict | None = None, source: str = "scene"):
+def render_adc(scene, radar, render_options: dict | None = None, source: str = "scene",
+               synthesis: str = "exact", timings: dict | None = None):
     """One frame of ADC of ``scene`` seen by ``radar`` at its pose.
 
     Parameters
@@ -117,6 +121,13 @@ def render_adc(scene, radar, render_options: dict | None = None, source: str = "
         :class:`~sionna_mmir.paths.RadarPathSolver` options over :data:`DENSE_RENDER`.
     source : str, optional
         Name of the scene in error messages.
+    synthesis : {"exact", "blocks"}, optional
+        ADC synthesis: the exact per-pair NUFFT (:mod:`sionna_mmir.fmcw.synthesize_nufft`)
+        or the block-pair spread for dense arrays
+        (:func:`~sionna_mmir.fmcw.synthesize_blocks.synthesize_adc_blocks`,
+        ~2 % relative error, static scenes).
+    timings : dict, optional
+        Receives ``paths_s`` and ``adc_s`` [s].
 
     Returns
     -------
@@ -131,7 +142,10 @@ def render_adc(scene, radar, render_options: dict | None = None, source: str = "
 
     from ..paths import RadarPathSolver, to_numpy
 
+    if synthesis not in SYNTHESES:
+        raise InputValueError(f"{source}: synthesis must be one of {SYNTHESES}, got {synthesis!r}")
     opts = {**DENSE_RENDER, **(render_options or {})}
+    t0 = time.perf_counter()
     scene.position = mi.TensorXf(mi.Float(np.asarray(radar.position, np.float32)), (3,))
     scene.orientation = mi.TensorXf(mi.Float(np.asarray(radar.orientation, np.float32)), (3,))
     paths = RadarPathSolver()(scene, radar, **opts)
@@ -139,11 +153,21 @@ def render_adc(scene, radar, render_options: dict | None = None, source: str = "
         raise InputValueError(f"{source}: empty point cloud: no ray from the radar at "
                               f"{np.round(radar.position, 3).tolist()} hits the scene "
                               "(check the pose and that the meshes lie in front of the radar)")
-    return to_numpy(paths.adc(radar))
+    t1 = time.perf_counter()
+    if synthesis == "blocks" and paths.is_factorised and paths.factors.rate is None:
+        from ..fmcw.synthesize_blocks import synthesize_adc_blocks
+
+        c, g_t, tau_t, g_r, tau_r, _ = paths.factors.numpy()
+        adc = synthesize_adc_blocks(radar, c, g_t, tau_t, g_r, tau_r)
+    else:
+        adc = to_numpy(paths.adc(radar))
+    if timings is not None:
+        timings.update(paths_s=t1 - t0, adc_s=time.perf_counter() - t1)
+    return adc
 
 
 def dense_cube(scene, radar, *, render_options=None, n_azimuth: int = 127,
-               n_elevation: int = 127, source: str = "scene"):
+               n_elevation: int = 127, source: str = "scene", synthesis: str = "blocks"):
     """Render a posed 2-D array and form its RAE cube.
 
     Parameters
@@ -155,20 +179,24 @@ def dense_cube(scene, radar, *, render_options=None, n_azimuth: int = 127,
         As :func:`render_adc`.
     n_azimuth, n_elevation : int, optional
         Angle FFT lengths (127).
+    synthesis : {"blocks", "exact"}, optional
+        ADC synthesis (:func:`render_adc`; default the block-pair spread).
 
     Returns
     -------
     cube : RAECube
     timings : dict
-        ``render_s``, ``rae_s``, ``frame_s`` [s].
+        ``paths_s``, ``adc_s``, ``render_s`` (their sum), ``rae_s``, ``frame_s`` [s].
     """
     check_elevation_aperture(radar)
+    timings = {}
     t0 = time.perf_counter()
-    adc = render_adc(scene, radar, render_options, source)
+    adc = render_adc(scene, radar, render_options, source, synthesis, timings)
     t1 = time.perf_counter()
     cube = rae_cube(adc, radar, n_azimuth=n_azimuth, n_elevation=n_elevation)
     t2 = time.perf_counter()
-    return cube, {"render_s": t1 - t0, "rae_s": t2 - t1, "frame_s": t2 - t0}
+    timings.update(render_s=t1 - t0, rae_s=t2 - t1, frame_s=t2 - t0)
+    return cube, timings
 
 
 def extruded_baseline(scene, radar, *, render_options=None, n_azimuth: int = 127,
@@ -234,7 +262,7 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
               dynamic_range_db: float = DEFAULT_DYNAMIC_RANGE_DB,
               points_per_m2: float = DEFAULT_POINTS_PER_M2, seed: int = 0,
               line_of_sight: bool = True, progress: bool = False,
-              source: str | None = None) -> OccupancyResult:
+              source: str | None = None, synthesis: str = "blocks") -> OccupancyResult:
     """Single-frame 3-D occupancy of a (fitted) scene from a dense virtual array.
 
     Parameters
@@ -273,6 +301,8 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
         tqdm bar over the stages.
     source : str, optional
         Name of the scene in error messages (default: its path(s)).
+    synthesis : {"blocks", "exact"}, optional
+        ADC synthesis of the dense frame (:func:`render_adc`).
 
     Returns
     -------
@@ -298,7 +328,8 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
     try:
         bar.set_postfix_str("render + RAE")
         cube, timings = dense_cube(as_scene(scene, materials), radar, render_options=render_options,
-                                   n_azimuth=n_azimuth, n_elevation=n_elevation, source=source)
+                                   n_azimuth=n_azimuth, n_elevation=n_elevation, source=source,
+                                   synthesis=synthesis)
         bar.update()
         bar.set_postfix_str("point cloud")
         with _prefixed(source):
@@ -320,7 +351,8 @@ def occupancy(scene, radar_dense, mesh, pose=None, *, materials: dict | None = N
         bar.update()
     finally:
         bar.close()
-    settings = {"render": {**DENSE_RENDER, **(render_options or {})}, "n_azimuth": n_azimuth,
+    settings = {"render": {**DENSE_RENDER, **(render_options or {})}, "synthesis": synthesis,
+                "n_azimuth": n_azimuth,
                 "n_elevation": n_elevation, "percentile": percentile, "tau": tau,
                 "min_intensity": min_intensity, "dynamic_range_db": dynamic_range_db,
                 "points_per_m2": points_per_m2, "seed": seed, "line_of_sight": line_of_sight}

@@ -76,6 +76,14 @@ def angle_fft(x, axis: int, window="hann", n_fft: int = 128, support=None) -> np
     if n_fft < n:
         raise InputValueError(f"angle_fft: n_fft ({n_fft}) must be >= the {n} grid cells "
                               f"on axis {axis}")
+    w = _axis_window(x, ax, window, support)
+    spec = np.fft.ifft(x * w, n_fft, axis=ax, norm="forward")
+    return np.fft.fftshift(spec, axes=ax)
+
+
+def _axis_window(x, ax: int, window, support) -> np.ndarray:
+    """The window of :func:`angle_fft` along ``ax``, shaped to broadcast against ``x``."""
+    n = x.shape[ax]
     start, stop = (0, n) if support is None else (int(support[0]), int(support[1]))
     if not 0 <= start < stop <= n:
         raise InputValueError(f"angle_fft: support {support} outside 0..{n}")
@@ -83,8 +91,51 @@ def angle_fft(x, axis: int, window="hann", n_fft: int = 128, support=None) -> np
     w[start:stop] = get_window(window, stop - start)
     shape = [1] * x.ndim
     shape[ax] = n
-    spec = np.fft.ifft(x * w.reshape(shape), n_fft, axis=ax, norm="forward")
-    return np.fft.fftshift(spec, axes=ax)
+    return w.reshape(shape)
+
+
+def angle_fft_2d(x, axes, windows, n_ffts, supports=(None, None), workers: int = -1):
+    """:func:`angle_fft` along two axes at once, as one multi-threaded 2-D transform.
+
+    The same spectrum as ``angle_fft(angle_fft(x, axes[0], ...), axes[1], ...)``
+    (the transforms are separable), computed by ``scipy.fft.ifft2`` with
+    ``workers`` threads in the input's precision (complex64 stays complex64).
+
+    Parameters
+    ----------
+    x : array_like
+        Complex array.
+    axes : tuple of int
+        The two axes to transform.
+    windows : tuple
+        Window names (or ``None``) per axis.
+    n_ffts : tuple of int
+        FFT lengths per axis (>= the axis lengths).
+    supports : tuple, optional
+        ``(start, stop)`` per axis, or ``None`` (all cells).
+    workers : int, optional
+        Threads of ``scipy.fft`` (-1: all cores).
+
+    Returns
+    -------
+    numpy.ndarray
+        Complex, ``x.shape`` with ``axes`` of lengths ``n_ffts``, fftshifted on both.
+    """
+    import scipy.fft
+
+    x = np.asarray(x)
+    if not np.iscomplexobj(x):
+        x = x.astype(np.complex64)
+    axes = tuple(a % x.ndim for a in axes)
+    for ax, n_fft in zip(axes, n_ffts):
+        if int(n_fft) < x.shape[ax]:
+            raise InputValueError(f"angle_fft: n_fft ({n_fft}) must be >= the {x.shape[ax]} "
+                                  f"grid cells on axis {ax}")
+    w = _axis_window(x, axes[0], windows[0], supports[0]) * \
+        _axis_window(x, axes[1], windows[1], supports[1])
+    spec = scipy.fft.ifft2(x * w, s=tuple(int(n) for n in n_ffts), axes=axes, norm="forward",
+                           workers=workers)
+    return np.fft.fftshift(spec, axes=axes)
 
 
 def azimuth_fft(x, radar: RadarConfig, axis: int = 0, window="hann", n_fft: int = 128,

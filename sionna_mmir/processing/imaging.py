@@ -26,7 +26,8 @@ import numpy as np
 
 from ..errors import ConfigError, InputValueError
 from ..radar.config import RadarConfig
-from .angle_fft import angle_fft, angles_from_spatial_frequency, spatial_frequencies
+from .angle_fft import (angle_fft, angle_fft_2d, angles_from_spatial_frequency,
+                        spatial_frequencies)
 from .doppler_fft import doppler_bins_hz, doppler_fft
 from .range_fft import range_fft
 from .virtual_array import VirtualArray
@@ -154,10 +155,13 @@ def range_azimuth_elevation(adc, radar: RadarConfig, *, range_window="hann",
     el_support = (0, va.n_el)
     if doppler == "mean":
         rfft, ranges = range_fft(x.mean(axis=2), radar, range_window, n_range)   # [tx, rx, R]
-        grid = va.to_grid(rfft)                                                   # [E0, A0, R]
-        spec = angle_fft(grid, 1, azimuth_window, n_azimuth, az_support)
-        spec = angle_fft(spec, 0, elevation_window, n_elevation, el_support)     # [E, A, R]
-        mag = np.abs(spec)
+        grid = np.ascontiguousarray(va.to_grid(rfft).transpose(2, 1, 0))         # [R, A0, E0]
+        spec = angle_fft_2d(grid, (1, 2), (azimuth_window, elevation_window),
+                            (n_azimuth, n_elevation), (az_support, el_support))  # [R, A, E]
+        rae = np.abs(spec)
+        az = angles_from_spatial_frequency(spatial_frequencies(n_azimuth), radar)
+        el = angles_from_spatial_frequency(spatial_frequencies(n_elevation), radar)
+        return rae, ranges, az, el
     else:
         rfft, ranges = range_fft(x, radar, range_window, n_range)
         dspec, _ = doppler_fft(rfft, radar, doppler_window)                       # [tx, rx, D, R]

@@ -29,6 +29,7 @@ bins are re-ordered so that ``ranges_m`` still increases from 0.
 from __future__ import annotations
 
 import numpy as np
+import scipy.fft
 
 from ..errors import InputValueError
 from ..radar.config import SPEED_OF_LIGHT, RadarConfig
@@ -86,7 +87,7 @@ def range_fft(adc, radar: RadarConfig, window="hann", n_fft: int | None = None,
     dtype = _complex_dtype(x)
     x = x.astype(dtype, copy=False)
     w = get_window(window, radar.num_samples).astype(x.real.dtype)
-    spec = np.fft.fft(x * w, n_fft, axis=-1)
+    spec = scipy.fft.fft(x * w, n_fft, axis=-1, workers=-1)    # multi-threaded, same precision
     if radar.slope < 0:
         spec = spec[..., (-np.arange(n_fft)) % n_fft]
     ranges = range_bins_m(radar, n_fft)

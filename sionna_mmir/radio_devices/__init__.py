@@ -1,7 +1,8 @@
 """Radio devices: antenna element beam patterns of the radar's Tx/Rx elements.
 
 ``beam_pattern``  learnable ``cos^q`` element pattern (closed-form directivity
-                  normalisation, per-element parameters), isotropic pattern,
+                  normalisation, per-element parameters), one shared ``cos^q``
+                  shape per array with per-element gain residuals, isotropic pattern,
                   an adapter for Sionna RT's own patterns, and ``make_pattern``.
 
 Importing this package configures the Dr.Jit backend
@@ -17,6 +18,7 @@ from .beam_pattern import (
     BeamPattern,
     CosinePowerPattern,
     IsotropicPattern,
+    SharedShapePattern,
     SionnaPattern,
     available_patterns,
     cosine_power_normalisation_np,
@@ -32,6 +34,7 @@ __all__ = [
     "IsotropicPattern",
     "Q_MIN",
     "QUARTER_POWER_DB",
+    "SharedShapePattern",
     "SionnaPattern",
     "available_patterns",
     "cosine_power_normalisation_np",

@@ -18,6 +18,10 @@ Patterns
     learnable separable ``G0 cos(az)^q_az cos(el)^q_el``
     (front hemisphere), per-element ``q``, normalised
     to directivity in closed form
+:class:`SharedShapePattern`
+    one learnable ``cos^q`` shape per array plus
+    per-element gain residuals (the shape transfers
+    to another array, the residuals do not)
 :class:`IsotropicPattern`
     ``G = 1``
 :class:`SionnaPattern`
@@ -91,6 +95,7 @@ __all__ = [
     "BeamPattern",
     "CosinePowerPattern",
     "IsotropicPattern",
+    "SharedShapePattern",
     "SionnaPattern",
     "make_pattern",
     "available_patterns",
@@ -576,6 +581,106 @@ class CosinePowerPattern(BeamPattern):
     def __repr__(self):
         qa, qe = self.q_np()
         return (f"CosinePowerPattern(q_az={qa.tolist()}, q_el={qe.tolist()}, "
+                f"n_elements={self.n_elements}, polarization={self.polarization_name!r})")
+
+
+# --------------------------------------------------------------------------
+# shared cos^q shape + per-element gain residuals
+# --------------------------------------------------------------------------
+class SharedShapePattern(CosinePowerPattern):
+    r"""One ``cos^q`` shape for a whole array plus a gain residual per element.
+
+    Power gain of element ``e``::
+
+        G_e(az, el) = exp(log_gain[e]) G0(q_az, q_el) cos(az)^q_az cos(el)^q_el
+
+    (front hemisphere, :class:`CosinePowerPattern`'s normalisation).  The
+    shape ``(q_az, q_el)`` is a property of the element type and of the
+    scene side of the fit (it describes how the array sees directions); the
+    residuals ``log_gain`` absorb per-element gain differences of one
+    particular board (feed losses, calibration), which do not carry over to
+    another sensor.  :meth:`transfer` gives the pattern of another array of
+    the same element type: the fitted shape with zero residuals.
+
+    Parameters
+    ----------
+    q_az, q_el : float, optional
+        Shared exponents (>= 0).
+    n_elements : int, optional
+        Number of elements (residuals).
+    log_gain : float or array_like, optional
+        Natural-log power-gain residuals, one or ``[n_elements]`` (default 0).
+    polarization : {"V", "H"}, optional
+        Linear polarisation (module notes).
+
+    Raises
+    ------
+    ConfigError
+        Invalid exponents, residuals or element count.
+    """
+
+    def __init__(self, q_az=DEFAULT_Q_AZ, q_el=DEFAULT_Q_EL, n_elements: int = 1,
+                 log_gain=0.0, polarization: str = "V"):
+        super().__init__(q_az=float(np.ravel(q_az)[0]), q_el=float(np.ravel(q_el)[0]),
+                         n_elements=1, polarization=polarization)
+        if isinstance(n_elements, bool) or not isinstance(n_elements, Integral) or n_elements < 1:
+            raise ConfigError(f"n_elements: expected an integer >= 1, got {n_elements!r}")
+        self.n_elements = int(n_elements)
+        g = np.broadcast_to(np.asarray(log_gain, dtype=np.float64), (self.n_elements,))
+        if not np.all(np.isfinite(g)):
+            raise ConfigError(f"log_gain: must be finite, got {g.tolist()}")
+        self.log_gain = mi.Float(g.astype(np.float32))
+
+    def params(self) -> dict:
+        """``{"log_q_az": [1], "log_q_el": [1], "log_gain": [n_elements]}`` (``mi.Float``)."""
+        return {"log_q_az": self.log_q_az, "log_q_el": self.log_q_el, "log_gain": self.log_gain}
+
+    def _assign_param(self, key, value):
+        sizes = {"log_q_az": 1, "log_q_el": 1, "log_gain": self.n_elements}
+        if key not in sizes:
+            raise ConfigError(f"SharedShapePattern has no parameter {key!r}")
+        v = mi.Float(value)
+        arr = np.asarray(dr.detach(v), dtype=np.float64)
+        if arr.size != sizes[key] or not np.all(np.isfinite(arr)):
+            raise ConfigError(f"{key}: expected {sizes[key]} finite values, got {arr.tolist()}")
+        setattr(self, key, v)
+
+    def transfer(self, n_elements: int) -> "SharedShapePattern":
+        """The pattern of another array of this element type: same shape, no residuals."""
+        qa, qe = self.q_np()
+        return SharedShapePattern(q_az=float(qa[0]), q_el=float(qe[0]), n_elements=n_elements,
+                                  polarization=self.polarization_name)
+
+    def _log_gain(self, direction, element):
+        d = dr.normalize(_as_vector3f(direction))
+        idx = self._element_index(element)
+        res = self.log_gain if idx is None else dr.gather(mi.Float, self.log_gain, idx)
+        qa, qe = dr.exp(self.log_q_az), dr.exp(self.log_q_el)
+        rho2 = dr.square(d.x) + dr.square(d.y)
+        log_g = (self.log_normalisation() + res + qa * dr.log(dr.maximum(d.x, _TINY))
+                 + 0.5 * (qe - qa) * dr.log(dr.maximum(rho2, _TINY)))
+        return log_g, d.x > 0.0
+
+    def gain_np(self, direction, element=None) -> np.ndarray:
+        """Float64 NumPy gain (shape from the angle definition, times the residual)."""
+        d = _np_directions(direction)
+        shape = CosinePowerPattern(*(float(q[0]) for q in self.q_np())).gain_np(d)
+        res = np.asarray(dr.detach(self.log_gain), dtype=np.float64)
+        if element is None:
+            if self.n_elements != 1:
+                raise InputValueError(
+                    f"element: this pattern has {self.n_elements} elements; pass indices")
+            return shape * np.exp(res[0])
+        e = np.asarray(element)
+        if e.dtype == bool or not np.issubdtype(e.dtype, np.integer) or (
+                e.size and (e.min() < 0 or e.max() >= self.n_elements)):
+            raise InputValueError(f"element: integer indices in [0, {self.n_elements - 1}] "
+                                  f"expected, got {element!r}")
+        return shape * np.exp(res[e.reshape(shape.shape) if e.size > 1 else e.ravel()[0]])
+
+    def __repr__(self):
+        qa, qe = self.q_np()
+        return (f"SharedShapePattern(q_az={qa[0]:.4g}, q_el={qe[0]:.4g}, "
                 f"n_elements={self.n_elements}, polarization={self.polarization_name!r})")
 
 

@@ -1,0 +1,146 @@
+"""Benchmark truths from three renderers, for two co-located sensors, cached on disk.
+
+A fit scored against a truth rendered by the model it fits is
+self-referential; these truths come from three renderers that share
+progressively less with mmIR:
+
+``"mmir"``
+    mmIR's own path solver, deterministic facet quadrature
+    (:func:`~sionna_mmir.compare.ground_truth.render_ground_truth`: clean
+    geometry refined to 8 cm edges, true spatially varying per-vertex
+    materials, depth 3, free-space diffraction), ``cos^q`` elements.
+``"sionna"``
+    unmodified Sionna RT (:class:`~sionna_mmir.baseline.SionnaBaseline`) on
+    the clean geometry with the nominal per-object ITU materials (Sionna has
+    no per-vertex materials), its own Monte Carlo ``PathSolver`` at depth 3
+    with :data:`SIONNA_TRUTH_SAMPLES` rays per Tx element, seed 0, isotropic
+    elements (the baseline's).
+``"independent"``
+    the plain NumPy physical-optics reference
+    (:func:`~sionna_mmir.independent.reference_truth`, no code shared with
+    the solver): true materials evaluated at the sub-facets themselves,
+    depth 3, ``cos^q`` elements.
+
+Each gets complex white receiver noise 40 dB under its peak ADC sample.
+Sensors: ``"cascade"`` (:meth:`RadarConfig.mmwcas`, one chirp, at the
+scene's radar pose) and ``"awr1843"`` (:meth:`RadarConfig.awr1843` at the
+cascade's pose composed with the single-chip mounting relative to the
+cascade on the ColoRadar rig, :func:`sensor_radar`).
+"""
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from ..errors import ConfigError
+
+TRUTHS = ("mmir", "sionna", "independent")
+SENSORS = ("cascade", "awr1843")
+#: Sionna truth rays per Tx element (depth 3).  Cascade (12 sources x 16
+#: targets): 100k, 3.3x the fits' 30k and the most that leaves room for other
+#: jobs on a 23 GB machine (classroom, the largest scene: peak RSS 8.0 GB at
+#: 200k); AWR1843 (3 x 4): Sionna's default 1M (2.7 GB, 9 s).
+SIONNA_TRUTH_SAMPLES = {"cascade": 100_000, "awr1843": 1_000_000}
+#: receiver noise under the peak ADC sample [dB] (as the benchmark truth)
+NOISE_DB = -40.0
+
+
+def calibration_dir():
+    """The ColoRadar calibration folder (``<measured>/coloradar_calib``) or raise."""
+    from ..captures.measured import find_measured_dir
+
+    root = find_measured_dir()
+    path = None if root is None else root / "coloradar_calib"
+    if path is None or not (path / "transforms").is_dir():
+        raise ConfigError("ColoRadar calibration (coloradar_calib/transforms) not found: set "
+                          "$SIONNA_MMIR_MEASURED to the measured-data folder")
+    return path
+
+
+def sensor_radar(spec, sensor: str, calib_dir=None):
+    """The radar ``sensor`` of scene ``spec`` (one chirp), posed.
+
+    ``"cascade"``: :func:`~sionna_mmir.benchmark_scenes.catalog.scene_radar`.
+    ``"awr1843"``: the AWR1843 at the cascade's pose composed with the
+    single-chip mounting relative to the cascade
+    (:func:`~sionna_mmir.captures.coloradar_calib.colocated_pose`).
+    """
+    from ..benchmark_scenes.catalog import scene_radar
+    from ..captures.coloradar_calib import colocated_pose
+    from ..radar.config import RadarConfig
+
+    cascade = scene_radar(spec)
+    if sensor == "cascade":
+        return cascade
+    if sensor != "awr1843":
+        raise ConfigError(f"sensor must be one of {SENSORS}, got {sensor!r}")
+    p, o = colocated_pose(cascade.position, cascade.orientation,
+                          calib_dir or calibration_dir(), "single_chip", "cascade")
+    return RadarConfig.awr1843(num_chirps=1, position=tuple(p), orientation=tuple(o))
+
+
+def _with_noise(adc: np.ndarray, seed: int, noise_db: float) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    sigma = np.abs(adc).max() * np.sqrt(10 ** (noise_db / 10) / 2)
+    return adc + sigma * (rng.standard_normal(adc.shape) + 1j * rng.standard_normal(adc.shape))
+
+
+def sionna_truth(spec, radar, *, samples_per_src: int, seed: int = 0,
+                 noise_db: float = NOISE_DB):
+    """Sionna RT's render of the clean scene with its nominal materials (a ``Capture``)."""
+    from ..baseline import SionnaBaseline
+    from ..captures.capture import Capture
+    from ..paths.render import to_numpy
+
+    t0 = time.perf_counter()
+    base = SionnaBaseline(dict(spec.objects), dict(spec.materials), radar, max_depth=3,
+                          samples_per_src=int(samples_per_src), seed=seed)
+    adc = to_numpy(base.render())[None].astype(np.complex128)
+    adc = _with_noise(adc, seed, noise_db)
+    meta = {"scene": spec.name, "renderer": "sionna.rt PathSolver (SionnaBaseline)",
+            "samples_per_src": int(samples_per_src), "max_depth": 3, "materials": "nominal",
+            "noise_db": noise_db, "seconds": time.perf_counter() - t0}
+    return Capture(adc.astype(np.complex64), radar, meta, "sionna_mmir.compare.truths.sionna")
+
+
+def render_truth(truth: str, spec, sensor: str = "cascade", *, seed: int = 0, calib_dir=None):
+    """A one-frame :class:`~sionna_mmir.captures.Capture` of ``spec`` by ``truth`` for ``sensor``."""
+    from .ground_truth import render_ground_truth
+
+    radar = sensor_radar(spec, sensor, calib_dir)
+    t0 = time.perf_counter()
+    if truth == "mmir":
+        cap = render_ground_truth(spec, radar=radar, seed=seed, num_rays=100_000, max_edge=0.08,
+                                  sampling="facets", noise_db=NOISE_DB)
+    elif truth == "sionna":
+        cap = sionna_truth(spec, radar, samples_per_src=SIONNA_TRUTH_SAMPLES[sensor], seed=seed)
+    elif truth == "independent":
+        from ..independent import reference_truth
+
+        cap = reference_truth(spec, radar, seed=seed, max_depth=3, noise_db=NOISE_DB)
+    else:
+        raise ConfigError(f"truth must be one of {TRUTHS}, got {truth!r}")
+    cap.metadata["truth"] = truth
+    cap.metadata["sensor"] = sensor
+    cap.metadata["render_s"] = time.perf_counter() - t0
+    return cap
+
+
+def truth_path(cache_dir, truth: str, scene: str, sensor: str) -> str:
+    """Cache file of one truth capture."""
+    return os.path.join(os.fspath(cache_dir), "truths", f"{truth}_{scene}_{sensor}.h5")
+
+
+def cached_truth(cache_dir, truth: str, spec, sensor: str = "cascade", **kwargs):
+    """:func:`render_truth`, read from / written to ``cache_dir`` (HDF5 captures)."""
+    from ..captures.capture import Capture
+
+    path = truth_path(cache_dir, truth, spec.name, sensor)
+    if os.path.exists(path):
+        return Capture.load(path)
+    cap = render_truth(truth, spec, sensor, **kwargs)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    cap.save(path, overwrite=True)
+    return cap
