@@ -11,7 +11,7 @@ MEASURED_DIR = pathlib.Path(os.environ.get(
     "SIONNA_MMIR_MEASURED", REPO_ROOT.parent / "shared" / "data" / "measured"))
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def measured_dir() -> pathlib.Path:
     """``../shared/data/measured`` beside the checkout; skips when absent."""
     if not MEASURED_DIR.is_dir():
