@@ -132,3 +132,55 @@ def test_07_empty_edge_set_query():
     assert len(es) == 0
     idx, valid = EdgeIndex(es).query(np.zeros((3, 3)), 1.0, max_edges=2)
     assert idx.shape == (3, 2) and not valid.any()
+
+
+def split_vertices(v, f):
+    """The same surface with no vertex shared between faces (flat shading)."""
+    return v[f.reshape(-1)], np.arange(3 * len(f)).reshape(-1, 3)
+
+
+def test_09_split_vertices_weld_to_the_true_edges():
+    """A flat-shaded mesh (faces sharing no vertex) has its seams as boundary
+    edges by vertex id; welded by position it has only the real ones."""
+    n = 6
+    v, f = grid(n)
+    vs, fs = split_vertices(v, f)
+    assert len(find_diffracting_edges(vs, fs)) == 3 * len(f)          # every side a "boundary"
+    es = find_diffracting_edges(vs, fs, weld_tol=1e-6)
+    ref = find_diffracting_edges(v, f)
+    assert len(es) == len(ref) == 4 * n and np.all(es.kind == BOUNDARY)
+    key = lambda e: sorted(map(tuple, np.round(np.sort(np.stack([e.p0, e.p1], 1), 1), 9)
+                               .reshape(len(e), -1)))
+    assert key(es) == key(ref)
+    np.testing.assert_allclose(es.p0, vs[es.v0]) and np.testing.assert_allclose(es.apex0, vs[es.a0])
+    cube_es = find_diffracting_edges(*split_vertices(*cube()), weld_tol=1e-6)
+    assert len(cube_es) == 12 and np.all(cube_es.kind == CREASE)
+    with pytest.raises(InputValueError, match="weld_tol"):
+        find_diffracting_edges(v, f, weld_tol=-1.0)
+
+
+def test_10_query_of_mixed_lengths_in_chunks_matches_brute_force(monkeypatch):
+    """Edges from 2 mm to 2 m (the index cuts the long ones into pieces) and
+    a query split into chunks give the brute-force answer."""
+    import sionna_mmir.scene.edges as edges_mod
+
+    rng = np.random.default_rng(5)
+    v, f = grid(10)
+    v[:, 2] = 0.05 * rng.standard_normal(len(v))
+    v = np.concatenate([v, [[0, 0, 1.0], [2.0, 0, 1.0], [2.0, 0.002, 1.0]]])
+    f = np.concatenate([f, [[len(v) - 3, len(v) - 2, len(v) - 1]]])     # a 2 m sliver
+    es = find_diffracting_edges(v, f, crease_angle_deg=10.0)
+    assert es.length.max() / np.median(es.length) > 10
+    pts = rng.uniform(-0.2, 2.2, size=(300, 3))
+    pts[:, 1] *= 0.5
+    along = np.column_stack([np.linspace(0.1, 1.9, 20), np.full(20, 0.06), np.ones(20)])
+    pts = np.concatenate([pts, along])              # near the sliver, far from its midpoint
+    radius, k = 0.12, 3
+    monkeypatch.setattr(edges_mod, "QUERY_CHUNK", 64)
+    idx, valid, dist = EdgeIndex(es).query(pts, radius, max_edges=k, return_distance=True)
+    d_all = point_segment_distance(pts[:, None, :], es.p0[None], es.p1[None])
+    for i in range(len(pts)):
+        ref = np.sort(d_all[i][d_all[i] <= radius])[:k]
+        np.testing.assert_allclose(dist[i, valid[i]], ref, atol=1e-12)
+        np.testing.assert_allclose(d_all[i, idx[i, valid[i]]], ref, atol=1e-12)
+    assert valid[-20:, 0].all() and (~valid).any()

@@ -30,6 +30,15 @@ The filter keeps only creases with a dihedral normal angle above
 ``crease_angle_deg`` (default 60 deg, far above tessellation noise, below
 the 90 deg of real building corners) and drops edges shorter than
 ``min_length`` (default 0: keep all).  No merging of collinear edges is done.
+
+Split vertices.  Adjacency is by vertex id.  A mesh whose faces do not share
+vertices where the surface goes on (flat-shaded or per-face-normal meshes,
+such as the LiDAR scaffold: 38k ground triangles on 115k vertices) would make
+every triangle side a boundary edge and diffract at every seam of a flat
+wall.  ``weld_tol > 0`` makes vertices closer than ``weld_tol`` one vertex for
+the adjacency (the edges keep the id of the first of them, at the same
+position); the renderer's diffraction passes :data:`WELD_TOL`, the tolerance
+the lit-footprint clipping welds with.
 Degenerate faces (area < :data:`sionna_mmir.scene.mesh_io.DEGENERATE_AREA_M2`)
 are ignored when counting adjacency.
 
@@ -48,7 +57,13 @@ from ..errors import InputValueError
 from .mesh_io import DEGENERATE_AREA_M2
 
 __all__ = ["EdgeSet", "EdgeIndex", "find_diffracting_edges", "point_segment_distance",
-           "BOUNDARY", "CREASE"]
+           "weld_vertices", "BOUNDARY", "CREASE", "WELD_TOL"]
+
+#: vertices closer than this [m] are one vertex for the renderer's edges
+#: (the tolerance of :mod:`sionna_mmir.paths.transport.clip_lines`)
+WELD_TOL = 1e-6
+#: query points per chunk of :meth:`EdgeIndex.query` (bounds its memory)
+QUERY_CHUNK = 32_768
 
 #: ``EdgeSet.kind`` codes
 BOUNDARY = 0
@@ -123,8 +138,20 @@ def _validate(vertices, faces):
     return v, f
 
 
+def weld_vertices(vertices, tol: float) -> np.ndarray:
+    """``[Nv]`` representative vertex id of every vertex: the first vertex of the
+    cell of side ``tol`` [m] it falls in (vertices closer than ``tol`` share
+    one unless a cell boundary separates them)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    if len(v) == 0:
+        return np.zeros(0, dtype=np.int64)
+    _, first, inv = np.unique(np.round(v / tol).astype(np.int64), axis=0,
+                              return_index=True, return_inverse=True)
+    return first[inv.reshape(-1)].astype(np.int64)
+
+
 def find_diffracting_edges(vertices, faces, crease_angle_deg: float = 60.0,
-                           min_length: float = 0.0) -> EdgeSet:
+                           min_length: float = 0.0, weld_tol: float = 0.0) -> EdgeSet:
     """Boundary and crease edges of a triangle mesh (see the module docstring).
 
     Parameters
@@ -138,6 +165,9 @@ def find_diffracting_edges(vertices, faces, crease_angle_deg: float = 60.0,
         than this [deg] (edge suppression of LiDAR noise)
     min_length : float, optional
         drop edges shorter than this [m]
+    weld_tol : float, optional
+        vertices closer than this [m] are one vertex for the adjacency
+        (0: by vertex id only; see "Split vertices" in the module docstring)
 
     Returns
     -------
@@ -154,6 +184,10 @@ def find_diffracting_edges(vertices, faces, crease_angle_deg: float = 60.0,
         raise InputValueError(f"crease_angle_deg must be in [0, 180], got {crease_angle_deg!r}")
     if not np.isfinite(min_length) or min_length < 0:
         raise InputValueError(f"min_length must be >= 0, got {min_length!r}")
+    if not np.isfinite(weld_tol) or weld_tol < 0:
+        raise InputValueError(f"weld_tol must be >= 0, got {weld_tol!r}")
+    if weld_tol > 0 and f.size:
+        f = weld_vertices(v, weld_tol)[f]
 
     cr = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]) if len(f) else np.zeros((0, 3))
     area2 = np.linalg.norm(cr, axis=1)
@@ -216,19 +250,33 @@ def point_segment_distance(points, p0, p1) -> np.ndarray:
 class EdgeIndex:
     """Nearest-edge queries over an :class:`EdgeSet`.
 
-    A ``scipy.spatial.cKDTree`` on the edge midpoints is searched with
-    ``radius + max half length`` (a segment within ``radius`` of ``x`` has its
-    midpoint within ``radius + |p1 - p0| / 2``); the candidates are then
-    filtered and ranked by the exact point-to-segment distance.
+    Every edge is cut into ``ceil(L / piece)`` equal pieces (``piece`` the
+    median edge length unless given); a ``scipy.spatial.cKDTree`` on the piece
+    midpoints is searched with ``radius + half the longest piece`` (a segment
+    within ``radius`` of ``x`` has a piece whose midpoint is within that
+    distance), and the candidates are then filtered and ranked by the exact
+    point-to-segment distance.  Cutting keeps the search ball from growing with
+    the longest edge of the mesh, and the candidate pairs come from a tree of
+    the query points (``sparse_distance_matrix``), not per-point lists.
     """
 
-    def __init__(self, edge_set: EdgeSet):
+    def __init__(self, edge_set: EdgeSet, piece: float | None = None):
         from scipy.spatial import cKDTree
 
         self.edges = edge_set
-        self._half = 0.5 * edge_set.length
-        self._hmax = float(self._half.max()) if len(edge_set) else 0.0
-        self._tree = cKDTree(edge_set.midpoint) if len(edge_set) else None
+        self._tree = None
+        if not len(edge_set):
+            return
+        length = edge_set.length
+        piece = float(np.median(length)) if piece is None else float(piece)
+        piece = piece if piece > 0 else max(float(length.max()), 1e-9)
+        n_pc = np.maximum(np.ceil(length / piece), 1).astype(np.int64)
+        self._edge_of = np.repeat(np.arange(len(edge_set)), n_pc)
+        first = np.cumsum(n_pc) - n_pc
+        frac = (np.arange(len(self._edge_of)) - first[self._edge_of] + 0.5) / n_pc[self._edge_of]
+        p0, p1 = edge_set.p0[self._edge_of], edge_set.p1[self._edge_of]
+        self._hmax = float(np.max(0.5 * length / n_pc))
+        self._tree = cKDTree(p0 + frac[:, None] * (p1 - p0))
 
     def query(self, points, radius: float, max_edges: int = 4, return_distance: bool = False):
         """Up to ``max_edges`` edges within ``radius`` of each point, nearest first.
@@ -268,21 +316,33 @@ class EdgeIndex:
         idx = np.zeros((n, k), dtype=np.int64)
         valid = np.zeros((n, k), dtype=bool)
         dist = np.full((n, k), np.inf)
-        if self._tree is not None and n:
-            cand = self._tree.query_ball_point(pts, radius + self._hmax)
-            lens = np.fromiter((len(cc) for cc in cand), dtype=np.int64, count=n)
-            if lens.sum():
-                e = np.concatenate([np.asarray(cc, dtype=np.int64) for cc in cand])
-                pi = np.repeat(np.arange(n), lens)
-                dd = point_segment_distance(pts[pi], self.edges.p0[e], self.edges.p1[e])
-                m = dd <= radius
-                e, pi, dd = e[m], pi[m], dd[m]
-                order = np.lexsort((e, dd, pi))
-                e, pi, dd = e[order], pi[order], dd[order]
-                first = np.searchsorted(pi, pi, side="left")
-                rank = np.arange(len(pi)) - first
-                m = rank < k
-                idx[pi[m], rank[m]] = e[m]
-                valid[pi[m], rank[m]] = True
-                dist[pi[m], rank[m]] = dd[m]
+        if self._tree is not None:
+            for lo in range(0, n, QUERY_CHUNK):    # the candidate lists stay small
+                sl = slice(lo, min(n, lo + QUERY_CHUNK))
+                self._query_chunk(pts[sl], radius, idx[sl], valid[sl], dist[sl])
         return (idx, valid, dist) if return_distance else (idx, valid)
+
+    def _query_chunk(self, pts, radius, idx, valid, dist) -> None:
+        """:meth:`query` of the points ``pts``, written into the views ``idx``,
+        ``valid``, ``dist``."""
+        from scipy.spatial import cKDTree
+
+        k = idx.shape[1]
+        pairs = cKDTree(pts).sparse_distance_matrix(self._tree, radius + self._hmax,
+                                                    output_type="ndarray")
+        if not len(pairs):
+            return
+        key = np.unique(pairs["i"].astype(np.int64) * len(self.edges)
+                        + self._edge_of[pairs["j"]])        # (point, edge), pieces merged
+        pi, e = key // len(self.edges), key % len(self.edges)
+        dd = point_segment_distance(pts[pi], self.edges.p0[e], self.edges.p1[e])
+        m = dd <= radius
+        e, pi, dd = e[m], pi[m], dd[m]
+        order = np.lexsort((e, dd, pi))
+        e, pi, dd = e[order], pi[order], dd[order]
+        first = np.searchsorted(pi, pi, side="left")
+        rank = np.arange(len(pi)) - first
+        m = rank < k
+        idx[pi[m], rank[m]] = e[m]
+        valid[pi[m], rank[m]] = True
+        dist[pi[m], rank[m]] = dd[m]

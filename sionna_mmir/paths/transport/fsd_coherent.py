@@ -97,11 +97,11 @@ def fresnel_tail(w):
 def boundary_edges(geo) -> dict | None:
     """Boundary edges of the scene: vertex ids ``v0, v1`` and the apex ``a``
     of the adjacent face (numpy), an :class:`~sionna_mmir.scene.edges.EdgeIndex`."""
-    from ...scene.edges import EdgeIndex, find_diffracting_edges
+    from ...scene.edges import WELD_TOL, EdgeIndex, find_diffracting_edges
 
     verts = np.asarray(dr.detach(geo.positions), dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(geo.faces, dtype=np.int64).reshape(-1, 3)
-    es = find_diffracting_edges(verts, faces)
+    es = find_diffracting_edges(verts, faces, weld_tol=WELD_TOL)   # seams are not edges
     keep = np.flatnonzero(np.asarray(es.kind) == 0) if len(es) else np.zeros(0, np.int64)
     if keep.size == 0:
         return None
