@@ -265,6 +265,37 @@ def test_14_free_space_diffraction_redirects_a_small_power_fraction(monkeypatch)
     assert p1 != p0 and abs(p1 - p0) < 0.05 * p0
 
 
+def test_14b_diffraction_sees_the_rim_of_a_flat_shaded_plate_only(monkeypatch):
+    """A plate whose faces share no vertex (flat shading) diffracts at its rim,
+    as the same plate with shared vertices does, not at every triangle seam."""
+    import drjit as dr
+
+    from sionna_mmir.paths.geometry import SceneGeometry
+    from sionna_mmir.paths.transport import continuation, diffraction
+
+    shared = _square([2, 0, 0], 0.4, subdiv=2)
+    split = trimesh.Trimesh(shared.vertices[shared.faces.reshape(-1)],
+                            np.arange(shared.faces.size).reshape(-1, 3), process=False)
+    counts = {}
+    orig = continuation.diffract
+
+    def spy(*a, **k):
+        mask, wo = orig(*a, **k)
+        counts.setdefault(key, []).append(int(dr.count(mask)[0]))
+        return mask, wo
+
+    monkeypatch.setattr(continuation, "diffract", spy)
+    n_edges = {}
+    for key, plate in (("shared", shared), ("split", split)):
+        scene = load_scene({"plate": plate, "wall": _square([4, 0, 0], 3.0, subdiv=0)},
+                           materials={"plate": "metal", "wall": "concrete"},
+                           radar=RadarConfig.awr1843())
+        n_edges[key] = len(diffraction.fsd_setup(SceneGeometry(scene), LAM, None)["edges"])
+        RadarPathSolver()(scene, num_rays=20_000, max_depth=2, seed=1, diffraction=True)
+    assert n_edges["split"] == n_edges["shared"] == 4 * 4 + 4      # plate rim (4 x 4) + wall
+    assert counts["split"] == counts["shared"] and counts["shared"][0] > 0
+
+
 def test_15_facet_quadrature_plate_rcs_and_low_variance():
     """sampling='facets': one ray per facet centroid, exact per-facet physical optics."""
     a, R = 0.1, 20.0
