@@ -157,7 +157,8 @@ def markdown(results, extra, truth, scenes, variants, extra_variants, budget) ->
         f"--iterations {budget.iterations} --scenes {','.join(scenes)} --truth {truth} "
         f"--variants {','.join(variants)}` (cells cached; the cells of the first table took "
         f"{compute_minutes(results):.0f} min of wall time in all, on 2 CPU cores shared with "
-        "other jobs).",
+        "other jobs). The second table reads cached cells only; its cells come from the same "
+        f"command with `--variants {','.join(extra_variants)}`.",
         "",
         f"Truth (every figure below is scored against it): `{truth}`, {TRUTH_LABELS[truth]}.",
         "",
