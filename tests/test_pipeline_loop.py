@@ -43,3 +43,16 @@ def test_01_planted_gains_adopted_and_reported(report):
             "stop_reason"} <= set(saved)
     a = saved["adoptions"][0]
     assert {"name", "side", "verdict", "before", "after", "unexplained"} <= set(a)
+
+
+def test_02_overlap_warning_needs_both_the_adc_residual_and_the_ra_map():
+    from sionna_mmir.pipeline.loop import overlap_warning
+
+    wrong_frame = {"residual_energy_db": -0.01, "ra_correlation": 0.001}
+    sensor_effect = {"residual_energy_db": -0.12, "ra_correlation": 0.72}
+    good = {"residual_energy_db": -12.0, "ra_correlation": 0.05}
+    msg = overlap_warning(wrong_frame, "run")
+    assert msg is not None and msg.startswith("run: the scene explains only 0 %")
+    assert "barely overlap" in msg
+    assert overlap_warning(sensor_effect, "run") is None
+    assert overlap_warning(good, "run") is None

@@ -153,13 +153,14 @@ def render_adc(scene, radar, render_options: dict | None = None, source: str = "
         raise InputValueError(f"{source}: empty point cloud: no ray from the radar at "
                               f"{np.round(radar.position, 3).tolist()} hits the scene "
                               "(check the pose and that the meshes lie in front of the radar)")
-    t1 = time.perf_counter()
     if synthesis == "blocks" and paths.is_factorised and paths.factors.rate is None:
         from ..fmcw.synthesize_blocks import synthesize_adc_blocks
 
-        c, g_t, tau_t, g_r, tau_r, _ = paths.factors.numpy()
+        c, g_t, tau_t, g_r, tau_r, _ = paths.factors.numpy()    # evaluates the traced paths
+        t1 = time.perf_counter()
         adc = synthesize_adc_blocks(radar, c, g_t, tau_t, g_r, tau_r)
     else:
+        t1 = time.perf_counter()
         adc = to_numpy(paths.adc(radar))
     if timings is not None:
         timings.update(paths_s=t1 - t0, adc_s=time.perf_counter() - t1)
