@@ -3,7 +3,8 @@
     .venv/bin/python comparisons/run_cross_truth.py [--iterations N] [--scenes a,b] [--truths t1,t2]
 
 Table 2 under three truths: for each truth (``mmir`` facet quadrature,
-``sionna`` Sionna RT at high sample count with its own materials,
+``sionna`` Sionna RT at high sample count with the true materials reduced
+to one per object,
 ``independent`` NumPy physical-optics reference; see
 ``sionna_mmir/compare/truths.py``) and each benchmark scene, mmIR (per-vertex
 materials + shared-shape beams, facet quadrature, depth 3) and the Sionna RT

@@ -243,6 +243,17 @@ def test_03b_params_apply_round_trip(two_plates):
         v = bl.values()
         assert v["wall.relative_permittivity"] == pytest.approx(3.0, rel=1e-6)
         assert v["wall.scattering_coefficient"] == pytest.approx(0.5, rel=1e-6)
+        # set_values: physical values in, the same values out (metal's eps_r = 1 floored)
+        bl.set_values({"wall.relative_permittivity": 4.1, "wall.conductivity": 2.5,
+                       "wall.thickness": 0.15, "metal.relative_permittivity": 1.0})
+        v = bl.values()
+        assert v["wall.relative_permittivity"] == pytest.approx(4.1, rel=1e-6)
+        assert v["wall.conductivity"] == pytest.approx(2.5, rel=1e-6)
+        assert v["wall.thickness"] == pytest.approx(0.15, rel=1e-6)
+        assert v["metal.relative_permittivity"] == pytest.approx(1.0, abs=2e-6)
+        assert v["wall.scattering_coefficient"] == pytest.approx(0.5, rel=1e-6)   # untouched
+        with pytest.raises(InputValueError, match="unknown parameter"):
+            bl.set_values({"wall.roughness": 1.0})
     finally:
         bl.apply(lat)
 

@@ -15,6 +15,7 @@ from sionna_mmir.radio_materials import available_materials, default_vertex_para
 from sionna_mmir.benchmark_scenes import (
     SCENES,
     WAVELENGTH_77GHZ,
+    area_weighted_mean,
     build_scene,
     lidarize,
     lidarize_scene,
@@ -22,6 +23,7 @@ from sionna_mmir.benchmark_scenes import (
     mesh_statistics,
     rotation_matrix,
     true_materials,
+    true_object_materials,
     true_vertex_materials,
 )
 
@@ -203,6 +205,47 @@ def test_10_true_materials_bad_input(scenes):
 def _box_distance(points, lo, hi):
     """Distance of points to the nearest face plane of an axis-aligned box."""
     return np.min(np.abs(np.concatenate([points - lo, points - hi], axis=1)), axis=1)
+
+
+def _two_part_plate(left_side=1.0, right_side=3.0):
+    """Two unshared flat rectangles 1 m tall, ``left_side`` and ``right_side`` m wide."""
+    parts = []
+    for x0, w in ((0.0, left_side), (left_side, right_side)):
+        v = np.array([[x0, 0, 0], [x0 + w, 0, 0], [x0 + w, 1, 0], [x0, 1, 0]], float)
+        parts.append((v, np.array([[0, 1, 2], [0, 2, 3]])))
+    v = np.vstack([parts[0][0], parts[1][0]])
+    f = np.vstack([parts[0][1], parts[1][1] + 4])
+    return trimesh.Trimesh(v, f, process=False)
+
+
+def test_10b_per_object_reduction_is_the_area_weighted_mean(scenes):
+    host = default_vertex_parameters("concrete", 77e9)
+    patch = default_vertex_parameters("metal", 77e9)
+    # uniform object: its value, on a plate of unequal faces
+    plate = _two_part_plate()
+    np.testing.assert_allclose(area_weighted_mean(plate, np.tile(host, (8, 1))), host,
+                               rtol=1e-12)
+    # 1 m^2 of metal beside 3 m^2 of concrete: weights 1/4 and 3/4, linear for
+    # eps_real and tau, geometric for eps_imag, sigma_h, l_c, d
+    p = np.vstack([np.tile(patch, (4, 1)), np.tile(host, (4, 1))])
+    got = area_weighted_mean(plate, p)
+    lin = [0, 4]
+    np.testing.assert_allclose(got[lin], 0.25 * patch[lin] + 0.75 * host[lin], rtol=1e-12)
+    geo = [1, 2, 3, 5]
+    patch_g = np.maximum(patch[geo], 1e-30)
+    np.testing.assert_allclose(got[geo], np.exp(0.25 * np.log(patch_g) + 0.75 * np.log(host[geo])),
+                               rtol=1e-10)
+    assert not np.allclose(got, 0.5 * (patch + host))   # not the per-vertex mean
+    with pytest.raises(InputValueError):
+        area_weighted_mean(plate, np.tile(host, (7, 1)))
+    # on a catalog scene: one (6,) per object, in the range of its vertex values
+    spec = scenes["hallway"]
+    red = true_object_materials(spec, max_edge=0.25)
+    assert set(red) == set(spec.objects)
+    verts = true_materials(spec, objects=spec.refined(0.25))
+    for name, v in red.items():
+        assert v.shape == (6,)
+        assert np.all(v >= verts[name].min(0) - 1e-12) and np.all(v <= verts[name].max(0) + 1e-12)
 
 
 def test_11_lidar_box_room_statistics(room_scan):

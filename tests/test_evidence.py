@@ -165,6 +165,35 @@ def test_07_sensor_radar_and_cell_stems(tmp_path):
     assert load_cell(stem) == (None, None)
     assert {"table2", "full", "no_beam", "no_normals", "no_fsd", "single_bounce",
             "per_object"} <= set(VARIANTS)
+    # the Sionna truth (true materials) does not read the nominal-material files
+    from sionna_mmir.compare.truths import truth_path
+
+    assert truth_path(tmp_path, "mmir", "lab", "cascade").endswith("mmir_lab_cascade.h5")
+    assert not truth_path(tmp_path, "sionna", "lab", "cascade").endswith("/sionna_lab_cascade.h5")
+    assert not cell_stem(tmp_path, "fit", "sionna", "lab", "sionna",
+                         Budget(iterations=6)).endswith("/fit_sionna_lab_sionna_it6")
+
+
+def test_07b_sionna_truth_gets_the_true_per_object_materials():
+    from sionna_mmir.benchmark_scenes import build_scene, true_object_materials
+    from sionna_mmir.compare.truths import sionna_material_values
+    from sionna_mmir.radio_materials import eps_imag_from_conductivity, itu_material
+
+    spec = build_scene("street", seed=0)
+    vals = sionna_material_values(spec)
+    red = true_object_materials(spec)
+    assert set(vals) == {f"{o}.{p}" for o in spec.objects
+                         for p in ("relative_permittivity", "conductivity", "thickness")}
+    for name, p in red.items():
+        assert vals[f"{name}.relative_permittivity"] == pytest.approx(p[0])
+        assert eps_imag_from_conductivity(vals[f"{name}.conductivity"], 77e9) \
+            == pytest.approx(p[1])
+        assert vals[f"{name}.thickness"] == pytest.approx(p[5])
+    # not the nominal classes the fitters start from
+    nominal = np.array([itu_material(spec.materials[o], 77e9).conductivity
+                        for o in spec.objects])
+    got = np.array([vals[f"{o}.conductivity"] for o in spec.objects])
+    assert np.abs(np.log(got / nominal)).max() > 0.1
 
 
 def _plate_spec():

@@ -480,6 +480,24 @@ class SionnaBaseline:
             setattr(self.radio_materials[name], pname, _to_value(pname, lat))
             self._latents[key] = v
 
+    def set_values(self, values: dict) -> None:
+        """Set physical values ``{"<object>.<param>": float}`` (the inverse of :meth:`values`).
+
+        Each value goes through the inverse of its :data:`LATENT_MAPS` entry
+        (with the floors / clips of the first push) and :meth:`apply`.
+        """
+        if not isinstance(values, dict):
+            raise InputValueError(f"SionnaBaseline.set_values: values must be a dict, "
+                                  f"got {type(values).__name__}")
+        latents = {}
+        for key, v in values.items():
+            pname = key.split(".", 1)[-1]
+            if pname not in PARAM_NAMES:
+                raise InputValueError(f"SionnaBaseline.set_values: unknown parameter {key!r}; "
+                                      f"params are {list(PARAM_NAMES)}")
+            latents[key] = _to_latent(pname, v)
+        self.apply(latents)
+
     def values(self) -> dict:
         """Current physical values ``{"<object>.<param>": float}`` (detached)."""
         return {f"{n}.{p}": _scalar(getattr(m, p))

@@ -105,9 +105,11 @@ from .lidar import WAVELENGTH_77GHZ, lidarize, lidarize_scene, mesh_statistics
 from .materials import (
     PATCH_MATERIALS,
     MaterialPatch,
+    area_weighted_mean,
     describe_true_materials,
     material_patches,
     true_materials,
+    true_object_materials,
     true_vertex_materials,
 )
 
@@ -120,6 +122,7 @@ __all__ = [
     "WAVELENGTH_77GHZ",
     "MaterialPatch",
     "SceneSpec",
+    "area_weighted_mean",
     "build_scene",
     "describe_true_materials",
     "lidarize",
@@ -128,5 +131,6 @@ __all__ = [
     "mesh_statistics",
     "rotation_matrix",
     "true_materials",
+    "true_object_materials",
     "true_vertex_materials",
 ]

@@ -145,9 +145,12 @@ def sionna_model(spec, meshes: dict, radar, budget: Budget):
 
 
 def cell_stem(cache_dir, kind: str, truth: str, scene: str, model: str, budget: Budget) -> str:
-    """Path stem of one cell's cached result (``.json`` / ``.npz``)."""
+    """Path stem of one cell's cached result (``.json`` / ``.npz``); the truth goes
+    by its :func:`~sionna_mmir.compare.truths.cache_label`."""
+    from .truths import cache_label
+
     return os.path.join(os.fspath(cache_dir), "cells",
-                        f"{kind}_{truth}_{scene}_{model}_it{budget.iterations}")
+                        f"{kind}_{cache_label(truth)}_{scene}_{model}_it{budget.iterations}")
 
 
 def _save(stem: str, result: dict, arrays: dict) -> dict:

@@ -11,17 +11,23 @@ progressively less with mmIR:
     materials, depth 3, free-space diffraction), ``cos^q`` elements.
 ``"sionna"``
     unmodified Sionna RT (:class:`~sionna_mmir.baseline.SionnaBaseline`) on
-    the clean geometry with the nominal per-object ITU materials (Sionna has
-    no per-vertex materials), its own Monte Carlo ``PathSolver`` at depth 3
-    with :data:`SIONNA_TRUTH_SAMPLES` rays per Tx element, seed 0, isotropic
-    elements (the baseline's).
+    the clean geometry with the scene's true materials as far as Sionna can
+    hold them: it has one material per object, so each object gets the
+    surface mean of its true per-vertex materials
+    (:func:`~sionna_mmir.benchmark_scenes.materials.true_object_materials`)
+    mapped the way the baseline parameterises a material
+    (:func:`sionna_material_values`); its own Monte Carlo ``PathSolver`` at
+    depth 3 with :data:`SIONNA_TRUTH_SAMPLES` rays per Tx element, seed 0,
+    isotropic elements (the baseline's).
 ``"independent"``
     the plain NumPy physical-optics reference
     (:func:`~sionna_mmir.independent.reference_truth`, no code shared with
     the solver): true materials evaluated at the sub-facets themselves,
     depth 3, ``cos^q`` elements.
 
-Each gets complex white receiver noise 40 dB under its peak ADC sample.
+All three describe the same scene: the clean geometry with the true
+materials, which differ from the nominal ITU classes every fitter starts
+from.  Each gets complex white receiver noise 40 dB under its peak ADC sample.
 Sensors: ``"cascade"`` (:meth:`RadarConfig.mmwcas`, one chirp, at the
 scene's radar pose) and ``"awr1843"`` (:meth:`RadarConfig.awr1843` at the
 cascade's pose composed with the single-chip mounting relative to the
@@ -45,6 +51,15 @@ SENSORS = ("cascade", "awr1843")
 SIONNA_TRUTH_SAMPLES = {"cascade": 100_000, "awr1843": 1_000_000}
 #: receiver noise under the peak ADC sample [dB] (as the benchmark truth)
 NOISE_DB = -40.0
+#: name of a truth in cache file names where it differs from the truth's name:
+#: the Sionna truth with true materials must not read the files of the one
+#: rendered with nominal materials
+CACHE_LABELS = {"sionna": "sionna-truemat"}
+
+
+def cache_label(truth: str) -> str:
+    """The name ``truth`` goes by in cache file names (:data:`CACHE_LABELS`)."""
+    return CACHE_LABELS.get(truth, truth)
 
 
 def calibration_dir():
@@ -87,9 +102,33 @@ def _with_noise(adc: np.ndarray, seed: int, noise_db: float) -> np.ndarray:
     return adc + sigma * (rng.standard_normal(adc.shape) + 1j * rng.standard_normal(adc.shape))
 
 
+def sionna_material_values(spec, seed: int = 0, frequency_hz: float = 77e9) -> dict:
+    """The true materials of ``spec`` as :class:`~sionna_mmir.baseline.SionnaBaseline` values.
+
+    Per object, the surface mean of the true per-vertex parameters
+    (:func:`~sionna_mmir.benchmark_scenes.materials.true_object_materials`)
+    mapped onto the per-object scalars the baseline has for them:
+    ``relative_permittivity = eps_real``, ``conductivity = 2 pi f eps0
+    eps_imag`` (ITU-R P.2040-3 2.1.2 at the carrier) and ``thickness = d``.
+    The baseline has no counterpart of the roughness terms (``sigma_h``,
+    ``l_c``, ``tau``): its ``scattering_coefficient`` and ``xpd_coefficient``
+    keep their starting values, as in every Sionna render here.  Returns
+    ``{"<object>.<param>": float}`` for :meth:`SionnaBaseline.set_values`.
+    """
+    from ..benchmark_scenes.materials import true_object_materials
+    from ..radio_materials.itu_table import EPSILON_0
+
+    out = {}
+    for name, p in true_object_materials(spec, seed, frequency_hz=frequency_hz).items():
+        out[f"{name}.relative_permittivity"] = float(p[0])
+        out[f"{name}.conductivity"] = float(2 * np.pi * frequency_hz * EPSILON_0 * p[1])
+        out[f"{name}.thickness"] = float(p[5])
+    return out
+
+
 def sionna_truth(spec, radar, *, samples_per_src: int, seed: int = 0,
                  noise_db: float = NOISE_DB):
-    """Sionna RT's render of the clean scene with its nominal materials (a ``Capture``)."""
+    """Sionna RT's render of the clean scene with its per-object true materials (a ``Capture``)."""
     from ..baseline import SionnaBaseline
     from ..captures.capture import Capture
     from ..paths.render import to_numpy
@@ -97,10 +136,13 @@ def sionna_truth(spec, radar, *, samples_per_src: int, seed: int = 0,
     t0 = time.perf_counter()
     base = SionnaBaseline(dict(spec.objects), dict(spec.materials), radar, max_depth=3,
                           samples_per_src=int(samples_per_src), seed=seed)
+    values = sionna_material_values(spec, seed, base.frequency)
+    base.set_values(values)
     adc = to_numpy(base.render())[None].astype(np.complex128)
     adc = _with_noise(adc, seed, noise_db)
     meta = {"scene": spec.name, "renderer": "sionna.rt PathSolver (SionnaBaseline)",
-            "samples_per_src": int(samples_per_src), "max_depth": 3, "materials": "nominal",
+            "samples_per_src": int(samples_per_src), "max_depth": 3,
+            "materials": "true, per-object surface mean", "material_values": values,
             "noise_db": noise_db, "seconds": time.perf_counter() - t0}
     return Capture(adc.astype(np.complex64), radar, meta, "sionna_mmir.compare.truths.sionna")
 
@@ -130,7 +172,8 @@ def render_truth(truth: str, spec, sensor: str = "cascade", *, seed: int = 0, ca
 
 def truth_path(cache_dir, truth: str, scene: str, sensor: str) -> str:
     """Cache file of one truth capture."""
-    return os.path.join(os.fspath(cache_dir), "truths", f"{truth}_{scene}_{sensor}.h5")
+    return os.path.join(os.fspath(cache_dir), "truths",
+                        f"{cache_label(truth)}_{scene}_{sensor}.h5")
 
 
 def cached_truth(cache_dir, truth: str, spec, sensor: str = "cascade", **kwargs):
