@@ -55,4 +55,6 @@ def test_02_overlap_warning_needs_both_the_adc_residual_and_the_ra_map():
     assert msg is not None and msg.startswith("run: the scene explains only 0 %")
     assert "barely overlap" in msg
     assert overlap_warning(sensor_effect, "run") is None
+    delay_offset = {"residual_energy_db": -0.07, "ra_correlation": 0.35}
+    assert overlap_warning(delay_offset, "run") is None
     assert overlap_warning(good, "run") is None
