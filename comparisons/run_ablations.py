@@ -184,7 +184,7 @@ def markdown(results, extra, truth, scenes, variants, extra_variants, budget) ->
 
 def main(argv=None) -> int:
     from sionna_mmir.compare.evidence import Budget
-    from sionna_mmir.compare.evidence_report import write_rows
+    from sionna_mmir.compare.evidence_report import write_markdown, write_rows
 
     a = _args(argv)
     scenes, variants = a.scenes.split(","), a.variants.split(",")
@@ -195,9 +195,7 @@ def main(argv=None) -> int:
     write_rows(results + [{**r, "model": f"{r['model']} (table 2)"} for r in extra
                           if r["model"] not in variants], a.out, a.stem)
     lines = markdown(results, extra, a.truth, scenes, variants, extra_variants, budget)
-    with open(os.path.join(a.out, a.stem + ".md"), "w") as f:
-        f.write("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_markdown(lines, a.out, a.stem)
     return 0
 
 

@@ -72,7 +72,7 @@ def run(truths, scenes, budget, cache, table_only=False, models=MODELS) -> list:
 
 def markdown(results, truths, scenes, budget, wall_s) -> list:
     from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, compute_minutes,
-                                                     leader_notes,
+                                                     leader_notes, model_truth_columns,
                                                      per_scene_lines, summary_lines)
 
     lines = [
@@ -105,13 +105,9 @@ def markdown(results, truths, scenes, budget, wall_s) -> list:
     lines += summary_lines(results, ["table2", "sionna"], truths, row_key="model",
                            col_key="truth", stage="before", col_label=lambda t: f"truth: {t}")
     lines += ["", "Who leads, per truth:", ""] + leader_notes(results, truths)
-    cols = []
-    for t in truths:
-        for m, lab in (("table2", "mmIR"), ("sionna", "Sionna RT")):
-            cols.append((f"{lab} [truth: {t}]",
-                         lambda sel, t=t, m=m: (
-                             f"{cell_value(sel, 'after', truth=t, model=m)} "
-                             f"({cell_value(sel, 'before', truth=t, model=m)})")))
+    cols = model_truth_columns(truths, "{label} [truth: {truth}]", lambda sel, t, m: (
+        f"{cell_value(sel, 'after', truth=t, model=m)} "
+        f"({cell_value(sel, 'before', truth=t, model=m)})"))
     lines += ["", "## Per scene: RA corr after fitting (before)", ""]
     lines += per_scene_lines(results, scenes, cols)
     return lines
@@ -119,7 +115,7 @@ def markdown(results, truths, scenes, budget, wall_s) -> list:
 
 def main(argv=None) -> int:
     from sionna_mmir.compare.evidence import Budget
-    from sionna_mmir.compare.evidence_report import write_rows
+    from sionna_mmir.compare.evidence_report import write_markdown, write_rows
 
     a = _args(argv)
     truths, scenes = a.truths.split(","), a.scenes.split(",")
@@ -129,9 +125,7 @@ def main(argv=None) -> int:
     wall = time.perf_counter() - t0
     write_rows(results, a.out, a.stem)
     lines = markdown(results, truths, scenes, budget, wall)
-    with open(os.path.join(a.out, a.stem + ".md"), "w") as f:
-        f.write("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_markdown(lines, a.out, a.stem)
     return 0
 
 

@@ -154,6 +154,8 @@ def markdown(rows, args, wall_s) -> list:
 
 
 def main(argv=None) -> int:
+    from sionna_mmir.compare.evidence_report import write_markdown
+
     a = _args(argv)
     fit_mrp, dense_render = _settings()
     t0 = time.perf_counter()
@@ -171,9 +173,7 @@ def main(argv=None) -> int:
     os.makedirs(a.out, exist_ok=True)
     with open(os.path.join(a.out, a.stem + ".json"), "w") as f:
         json.dump(rows, f, indent=1, default=float)
-    with open(os.path.join(a.out, a.stem + ".md"), "w") as f:
-        f.write("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_markdown(lines, a.out, a.stem)
     return 0
 
 

@@ -99,7 +99,7 @@ def _verdict(results, truths) -> list:
 
 def markdown(results, truths, scenes, budget, wall_s) -> list:
     from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, compute_minutes,
-                                                     per_scene_lines,
+                                                     model_truth_columns, per_scene_lines,
                                                      summary_lines)
 
     lines = [
@@ -130,13 +130,10 @@ def markdown(results, truths, scenes, budget, wall_s) -> list:
                                stage=stage, col_label=lambda t: f"truth: {t}")
     lines += ["", "Acceptance (mean after > mean before, per truth):", ""]
     lines += _verdict(results, truths)
-    cols = []
-    for t in truths:
-        for m, lab in (("table2", "mmIR"), ("sionna", "Sionna RT")):
-            cols.append((f"{lab} [truth: {t}] before -> after",
-                         lambda sel, t=t, m=m: (
-                             f"{cell_value(sel, 'before', truth=t, model=m)} "
-                             f"-> {cell_value(sel, 'after', truth=t, model=m)}")))
+    cols = model_truth_columns(truths, "{label} [truth: {truth}] before -> after",
+                               lambda sel, t, m: (
+                                   f"{cell_value(sel, 'before', truth=t, model=m)} "
+                                   f"-> {cell_value(sel, 'after', truth=t, model=m)}"))
     lines += ["", "## Per scene: AWR1843 RA corr before -> after", ""]
     lines += per_scene_lines(results, scenes, cols)
     return lines
@@ -144,7 +141,7 @@ def markdown(results, truths, scenes, budget, wall_s) -> list:
 
 def main(argv=None) -> int:
     from sionna_mmir.compare.evidence import Budget
-    from sionna_mmir.compare.evidence_report import write_rows
+    from sionna_mmir.compare.evidence_report import write_markdown, write_rows
 
     a = _args(argv)
     truths, scenes = a.truths.split(","), a.scenes.split(",")
@@ -154,9 +151,7 @@ def main(argv=None) -> int:
     wall = time.perf_counter() - t0
     write_rows(results, a.out, a.stem)
     lines = markdown(results, truths, scenes, budget, wall)
-    with open(os.path.join(a.out, a.stem + ".md"), "w") as f:
-        f.write("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_markdown(lines, a.out, a.stem)
     return 0
 
 

@@ -278,3 +278,16 @@ def test_10_evidence_tables_name_the_truth(tmp_path):
     csv_path, json_path = write_rows(res, tmp_path, "t")
     text = open(csv_path).read().splitlines()
     assert text[0].startswith("truth,scene,model,before_ra_correlation") and len(text) == 9
+
+
+def test_13_model_truth_columns_and_markdown(tmp_path, capsys):
+    from sionna_mmir.compare.evidence_report import model_truth_columns, write_markdown
+
+    cols = model_truth_columns(["mmir", "independent"], "{label} [truth: {truth}]",
+                               lambda sel, t, m: f"{t}/{m}/{len(sel)}")
+    assert [c[0] for c in cols] == ["mmIR [truth: mmir]", "Sionna RT [truth: mmir]",
+                                    "mmIR [truth: independent]", "Sionna RT [truth: independent]"]
+    assert [fn([1, 2]) for _, fn in cols] == ["mmir/table2/2", "mmir/sionna/2",
+                                             "independent/table2/2", "independent/sionna/2"]
+    path = write_markdown(["# t", "| a |"], str(tmp_path / "o"), "x")
+    assert open(path).read() == "# t\n| a |\n" and "| a |" in capsys.readouterr().out

@@ -121,6 +121,30 @@ def write_rows(results: list, out_dir: str, stem: str, stages=("before", "after"
     return csv_path, json_path
 
 
+def model_truth_columns(truths: list, header: str, cell, models=("table2", "sionna")) -> list:
+    """Per-scene table columns, one per (truth, model): ``(title, fn(sel))``.
+
+    ``header`` formats the title from ``label`` and ``truth``; ``cell(sel, truth,
+    model)`` formats the cell of the scene's results ``sel``.
+    """
+    cols = []
+    for t in truths:
+        for m in models:
+            cols.append((header.format(label=model_label(m), truth=t),
+                         lambda sel, t=t, m=m: cell(sel, t, m)))
+    return cols
+
+
+def write_markdown(lines: list, out_dir: str, stem: str) -> str:
+    """Write ``<stem>.md`` under ``out_dir``, print it, return its path."""
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, stem + ".md")
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return path
+
+
 def leader_notes(results: list, truths: list, models=("table2", "sionna"),
                  stage: str = "after") -> list:
     """One line per truth: which model leads the mean RA corr, and by how much.
