@@ -280,7 +280,7 @@ def test_10_evidence_tables_name_the_truth(tmp_path):
     assert text[0].startswith("truth,scene,model,before_ra_correlation") and len(text) == 9
 
 
-def test_13_model_truth_columns_and_markdown(tmp_path, capsys):
+def test_11_model_truth_columns_and_markdown(tmp_path, capsys):
     from sionna_mmir.compare.evidence_report import model_truth_columns, write_markdown
 
     cols = model_truth_columns(["mmir", "independent"], "{label} [truth: {truth}]",
