@@ -90,12 +90,12 @@ def score_case(case, doc) -> dict:
 
 def _table(rows) -> list:
     L = ["| case | planted | adopted (order) | first [dB] | final [dB] | unexplained [dB] | "
-         "ok | s |", "|---|---|---|---|---|---|---|---|"]
+         "ok | s | commit |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        L.append(f"| {r['case']} | {', '.join(r['planted']) or '-'} | "
+        L.append(f"| {r['case']} ({r['radar']}, {r['chirps']} chirps) | {', '.join(r['planted']) or '-'} | "
                  f"{', '.join(r['adopted']) or '-'} | {r['first_db']:.2f} | {r['final_db']:.2f} | "
                  f"{r['unexplained_db']:+.2f} | {'yes' if r['ok'] else 'NO'} | "
-                 f"{r['seconds']:.0f} |")
+                 f"{r['seconds']:.0f} | {r.get('commit', '-')} |")
     return L
 
 
@@ -116,6 +116,44 @@ def _summary(rows) -> list:
             f"{rate(r for r in rows if r['planted'] == ['pose_offset'])} |"]
 
 
+def _commit() -> str:
+    """The package's git commit (``"unknown"`` outside a checkout)."""
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "-C", HERE, "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _previous_rows(out: str) -> list:
+    """Rows of earlier invocations (a case run again on the same radar replaces its row)."""
+    path = os.path.join(out, "suite.json")
+    if not os.path.exists(path):
+        return []
+    with open(path) as f:
+        return json.load(f)
+
+
+def _write(args, rows) -> None:
+    """suite.json and suite.md of the rows so far."""
+    with open(os.path.join(args.out, "suite.json"), "w") as f:
+        json.dump(rows, f, indent=1, default=str)
+    cmd = "comparisons/run_undeclared_suite.py" + "".join(
+        f" --{k} {v}" for k, v in (("subset", args.subset), ("chirps", args.chirps),
+                                    ("radar", args.radar)) if v is not None)
+    text = [f"# The loop on the independent undeclared-effect suite", "",
+            f"Reproduce: `.venv/bin/python {cmd}`", "",
+            "Truth: the planted effects of `sionna_mmir.independent.undeclared` (no code shared "
+            "with the solver or the effects library).", ""]
+    for radar in sorted({r["radar"] for r in rows}):
+        sel = [r for r in rows if r["radar"] == radar]
+        text += [f"## {radar}", ""] + _table(sel) + _summary(sel) + [""]
+    with open(os.path.join(args.out, "suite.md"), "w") as f:
+        f.write("\n".join(text) + "\n")
+
+
 def main(argv=None) -> int:
     from sionna_mmir.independent.undeclared import make_case, suite_kinds
 
@@ -127,7 +165,9 @@ def main(argv=None) -> int:
                    help="the sensor (default: cascade for full, awr1843 for fast)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--work", default="/tmp/sionna_mmir_undeclared_suite")
-    p.add_argument("--out", default=os.path.join(HERE, "undeclared_suite"))
+    p.add_argument("--out", default=os.path.join(HERE, "undeclared_suite"),
+                   help="report folder; rows already in its suite.json for the same radar are "
+                        "kept and a case run again replaces its row")
     args = p.parse_args(argv)
     kinds = suite_kinds(args.subset)
     if args.cases:
@@ -135,27 +175,19 @@ def main(argv=None) -> int:
         kinds = [k for k in kinds if (k if isinstance(k, str) else "+".join(k)) in wanted]
     radar = args.radar or ("cascade" if args.subset == "full" else "awr1843")
     os.makedirs(args.out, exist_ok=True)
-    rows = []
+    rows = _previous_rows(args.out)
     for kind in kinds:
         case = make_case(kind, seed=args.seed, radar=radar, num_chirps=args.chirps)
         doc, wall = _run_case(case, os.path.join(args.work, case.name), args.chirps)
         row = score_case(case, doc)
-        row["seconds"] = wall
-        rows.append(row)
+        row["seconds"], row["radar"], row["chirps"] = wall, radar, case.capture.radar.num_chirps
+        row["commit"] = _commit()
+        rows = [r for r in rows if (r["case"], r["radar"]) != (case.name, radar)] + [row]
         print(f"{case.name}: adopted {row['adopted']} -> {'ok' if row['ok'] else 'NOT ok'} "
               f"({wall:.0f} s)", flush=True)
-        with open(os.path.join(args.out, "suite.json"), "w") as f:
-            json.dump(rows, f, indent=1, default=str)
-    cmd = "comparisons/run_undeclared_suite.py" + "".join(
-        f" --{k} {v}" for k, v in (("subset", args.subset), ("chirps", args.chirps),
-                                    ("cases", args.cases), ("radar", args.radar)) if v is not None)
-    text = [f"# The loop on the independent undeclared-effect suite", "",
-            f"Reproduce: `.venv/bin/python {cmd}`", "",
-            "Truth: the planted effects of `sionna_mmir.independent.undeclared` (no code shared "
-            "with the solver or the effects library).", ""] + _table(rows) + _summary(rows)
-    with open(os.path.join(args.out, "suite.md"), "w") as f:
-        f.write("\n".join(text) + "\n")
-    print("\n".join(_summary(rows)))
+        _write(args, rows)
+    _write(args, rows)
+    print("\n".join(_summary([r for r in rows if r["radar"] == radar])))
     return 0
 
 

@@ -494,7 +494,8 @@ def test_16_if_filter_gradient():
     radar, clean, meas, _ = _if_capture(0.02, 13)
     m = EffectModel(EffectContext(radar), meas, clean)
     comp = m.add(IFFilter())
-    comp.values = {"log_fc": np.log10([F_HP / 1e3, F_LP / 1e3]) + np.array([0.1, -0.05])}
+    comp.values = {"log_fc": np.log10([F_HP / 1e3, F_LP / 1e3]) + np.array([0.1, -0.05]),
+                   "pre_noise": np.array([0.6])}
     _check_gradient(m)
 
 
@@ -680,3 +681,80 @@ def test_26_summaries_are_json_and_physical():
         json.dumps(effect.summary(comp.values, ctx))
         assert effect.stage in (1, 2, 3) and effect.kind in ("mean", "variance")
         assert math.isfinite(m.nll())
+
+
+# ====================================================== IF filter: noise shaping
+def test_27_if_filter_noise_gain_is_the_bin_averaged_power_response():
+    from sionna_mmir.effects.library.if_filter import noise_gain_numpy
+
+    radar = _radar(1)
+    ctx = EffectContext(radar)
+    N, fs = radar.num_samples, radar.sample_rate
+    bin_hz, f_hp, f_lp, rho = fs / N, 300e3, 2.5e6, 0.7
+    f = np.fft.fftfreq(N, 1 / fs)
+    got = noise_gain_numpy(f, f_hp, f_lp, 4, bin_hz, rho)
+    # brute force: mean of |H_hp|^2 over the bin by quadrature, |H_lp|^2 at the centre
+    u = np.linspace(-0.5, 0.5, 4001)
+    ff = f[:, None] + u[None] * bin_hz
+    hp2 = np.mean((ff / f_hp) ** 2 / (1 + (ff / f_hp) ** 2), axis=1)
+    ref = rho * hp2 / (1 + (np.abs(f) / f_lp) ** 8) + 1 - rho
+    assert np.allclose(got, ref, rtol=1e-4, atol=1e-6)
+    assert got[0] < 0.5 < got[N // 8]                     # the notch at DC
+    p = {"log_fc": mi.TensorXf(np.log10([f_hp / 1e3, f_lp / 1e3]).astype(np.float32)),
+         "pre_noise": mi.TensorXf(np.array([rho], np.float32))}
+    dr_gain = ops.to_numpy(IFFilter().noise_gain(p, ctx)).reshape(-1)
+    ref = noise_gain_numpy(ctx.band_frequencies(-0.5), f_hp, f_lp, 4, bin_hz, rho)
+    assert np.allclose(dr_gain, ref, rtol=1e-4, atol=1e-6)
+
+
+def _hp_noise_capture(rho, f_hp, num_chirps=16, seed=31, sigma=0.05):
+    """Targets behind an analog high-pass (steady state) plus receiver noise of
+    which a share ``rho`` passed a first-order digital high-pass
+    (``scipy.signal.butter``, bilinear) and the rest is white."""
+    radar, tau, _ = _scene(num_chirps=num_chirps, ranges=IF_RANGES, azimuths=IF_AZ, amps=IF_AMPS)
+    clean = synthesize_adc(radar, IF_AMPS, tau)[None].astype(np.complex128)
+    H = _analog_response(radar.slope * tau, f_hp=f_hp, f_lp=1e9)
+    filtered = synthesize_adc(radar, IF_AMPS * H, tau)[None].astype(np.complex128)
+    rng = np.random.default_rng(seed)
+    pre = _noise(clean.shape, sigma * np.sqrt(rho), seed)
+    b, a = signal.butter(1, f_hp, "highpass", fs=radar.sample_rate)
+    pre = signal.lfilter(b, a, np.concatenate([pre, pre], axis=-1), axis=-1)[..., clean.shape[-1]:]
+    post = _noise(clean.shape, sigma * np.sqrt(1 - rho), int(rng.integers(1 << 30)))
+    return radar, clean, filtered + pre + post
+
+
+def test_28_if_filter_recovers_the_noise_notch_and_its_share():
+    radar, clean, meas = _hp_noise_capture(0.8, 400e3)
+    ctx = EffectContext(radar)
+    m0 = EffectModel(ctx, meas, clean)
+    m0.fit()
+    m, comp = _fit(ctx, meas, clean, IFFilter())
+    f_hp = 10 ** comp.values["log_fc"][0] * 1e3
+    assert f_hp == pytest.approx(400e3, rel=0.1)
+    assert float(comp.values["pre_noise"][0]) == pytest.approx(0.8, abs=0.1)
+    # the shaped floor is worth many nats beyond the signal-side response alone
+    m1 = EffectModel(ctx, meas, clean)
+    m1.fit()
+    c1 = m1.add(IFFilter())
+    c1.specs = dict(c1.specs, pre_noise=type(c1.specs["pre_noise"])([0.0], lower=0.0, upper=0.0))
+    c1.values["pre_noise"] = np.array([0.0])
+    m1.fit()
+    n = np.prod(ctx.shape)
+    assert (m1.nll() - m.nll()) * n > 200
+
+
+def test_29_if_filter_leaves_a_white_floor_white():
+    radar, clean, meas = _hp_noise_capture(0.0, 400e3)
+    # no filter anywhere: replace the filtered targets by the clean ones
+    meas = meas - synthesize_adc(radar, IF_AMPS * _analog_response(
+        radar.slope * _delays(radar, IF_RANGES, IF_AZ), f_hp=400e3, f_lp=1e9), _delays(
+        radar, IF_RANGES, IF_AZ))[None] + clean
+    ctx = EffectContext(radar)
+    m0 = EffectModel(ctx, meas, clean)
+    m0.fit()
+    m, comp = _fit(ctx, meas, clean, IFFilter())
+    n = np.prod(ctx.shape)
+    assert (m0.nll() - m.nll()) * n < 3.0            # under the AIC penalty of 3 parameters
+    s = ops.to_numpy(IFFilter().noise_gain(
+        {k: mi.TensorXf(np.asarray(v, np.float32)) for k, v in comp.values.items()}, ctx))
+    assert np.min(s) > 0.9

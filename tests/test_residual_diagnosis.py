@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import signal
 
 from sionna_mmir.effects import EffectContext, EffectModel
 from sionna_mmir.effects.library.channel_gain import ChannelGain
@@ -153,3 +154,38 @@ def test_07_variance_effects_are_ranked_only_when_no_mean_effect_helps():
     # round 1 scored only the mean candidate (it helped), so the noise floor is unranked
     assert d.adopted == ["channel_gain"]
     assert [c.name for c in d.adoptions[0].candidates] == ["channel_gain"]
+
+
+def test_08_slot_share_counts_the_frame_chirp_slots_that_gain():
+    from sionna_mmir.residual.diagnosis import slot_share
+
+    shape = (1, 2, 2, 4)                                   # F, T, R, C
+    test = np.zeros(shape, bool)
+    test[0, 0, :, :] = True                                # one fold: Tx 0, both Rx, 4 chirps
+    # per held-out cell, in the mask's C order: (r0 c0..c3), (r1 c0..c3)
+    gains = np.array([5.0, -1.0, 2.0, -3.0, 5.0, -1.0, -2.5, -3.0])
+    # slots: c0 +10, c1 -2, c2 -0.5, c3 -6 -> one of four gains
+    assert slot_share([gains], [test]) == pytest.approx(0.25)
+    assert slot_share([np.abs(gains)], [test]) == pytest.approx(1.0)
+    assert slot_share([gains[:2]], [np.zeros((1, 1, 1, 2), bool) | True]) == 1.0   # < 4 slots
+
+
+def test_09_a_noise_floor_is_not_adopted_for_a_burst_in_a_few_chirps():
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    meas = clean + _noise(clean.shape, 0.01, 8)
+    # a low-frequency burst (interference mixed down near DC): coloured like 1/f noise
+    b, a = signal.butter(1, 0.03)
+    burst = signal.lfilter(b, a, _noise(clean.shape, 1.0, 9), axis=-1)
+    keep = np.zeros(radar.num_chirps, bool)
+    keep[[3, 11]] = True
+    meas = meas + burst * keep[None, None, None, :, None]  # interference in chirps 3 and 11
+    d = diagnose(EffectModel(ctx, meas, clean), [NoiseFloor()], max_rounds=1)
+    assert d.adopted == []
+    (c,) = d.last_candidates
+    assert c.score > 0 and c.slot_share < 0.5              # it helps, but in two chirps only
+    # the same power spread over every chirp is a noise floor
+    meas = clean + _noise(clean.shape, 0.01, 8) + burst * np.sqrt(2 / 16)
+    d = diagnose(EffectModel(ctx, meas, clean), [NoiseFloor()], max_rounds=1)
+    assert d.adopted == ["noise_floor"]

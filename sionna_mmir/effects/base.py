@@ -9,6 +9,11 @@ additions).  Two kinds:
 * ``kind = "variance"``: adds noise power per range bin (unitary-DFT domain),
   ``variance(x, X, p) -> [.., N]`` broadcastable to ``[F, T, R, C, N]``.
 
+A mean effect that sits in the receive chain after a noise source (an IF
+filter after the mixer) also shapes that noise: it sets
+``shapes_noise = True`` and implements :meth:`Effect.noise_gain`, the power
+gain per range bin it applies to the white receiver floor.
+
 Effects run in ``stage`` order: 0 scene (extra paths), 1 RF / per channel
 (gains, delays, coupling), 2 IF (filter), 3 ADC (DC, IQ, clipping).
 """
@@ -110,6 +115,14 @@ class Effect:
     def apply(self, x, p: dict, ctx):
         """Mean effect: ``(re, im)`` ``[F, T, R, C, N]`` -> ``(re, im)``; ``p`` name -> ``mi.TensorXf``."""
         raise NotImplementedError(f"{self.name} is not a mean effect")
+
+    #: the effect also filters the white receiver floor (see :meth:`noise_gain`)
+    shapes_noise = False
+
+    def noise_gain(self, p: dict, ctx):
+        """Power gain per range bin on the white floor ``sigma^2``, broadcastable to
+        ``[F, T, R, C, N]`` (a mean effect with ``shapes_noise = True``)."""
+        raise NotImplementedError(f"{self.name} does not shape the noise floor")
 
     def variance(self, x, X, p: dict, ctx):
         """Variance effect: added noise power per range bin, broadcastable to ``[F, T, R, C, N]``.

@@ -4,11 +4,14 @@ The measured ADC ``y`` is modelled, in the range (unitary DFT) domain, as::
 
     Y[f, t, r, c, k] ~ CN( X[f, t, r, c, k],  v[f, t, r, c, k] )
     x = effects_mean( g * b ),        X = DFT(x)
-    v = sigma^2 + sum of variance effects
+    v = sigma^2 s + sum of variance effects,   s = prod of noise gains
 
 with ``b`` the base model's ADC (e.g. the fitted scene's render), ``g`` one
 global complex gain and ``sigma^2`` a white noise floor (both nuisance
-parameters, always fitted, never reported as effects).  The loss is the mean
+parameters, always fitted, never reported as effects); ``s`` is the power
+gain of the mean effects that also filter the receiver noise
+(:meth:`~.base.Effect.noise_gain`, e.g. the IF high-pass), 1 without
+them.  The loss is the mean
 negative log-likelihood per complex sample over the cells of a mask
 (``|Y - X|^2 / v + log v``), a proper score for both kinds of effect:
 mean effects reduce ``|Y - X|^2``, variance effects shape ``v``.
@@ -283,11 +286,34 @@ class EffectModel:
                 x = c.effect.apply(x, _block(tens, i, c), self.ctx)
         X = ops.dft(x)
         v = dr.exp(ops.view(tens[(-1, "log_noise")], (1, 1, 1, 1, 1)))
+        for i in self._noise_shapers(order):
+            v = v * self.components[i].effect.noise_gain(_block(tens, i, self.components[i]),
+                                                         self.ctx)
         for i in order:
             c = self.components[i]
             if c.effect.kind == "variance":
                 v = v + c.effect.variance(x, X, _block(tens, i, c), self.ctx)
         return x, X, v
+
+    def _noise_shapers(self, order=None) -> list:
+        """Indices of the mean components that filter the white floor."""
+        order = self._order() if order is None else order
+        return [i for i in order if self.components[i].effect.kind == "mean"
+                and getattr(self.components[i].effect, "shapes_noise", False)]
+
+    @_one_thread
+    def white_shape_numpy(self) -> np.ndarray:
+        """``s``: the power gain on the white floor, broadcast to ``[F, T, R, C, N]``."""
+        s = np.ones(self.ctx.shape)
+        shapers = self._noise_shapers()
+        if shapers:
+            with dr.suspend_grad():
+                tens = self._tensors()
+                for i in shapers:
+                    g = self.components[i].effect.noise_gain(_block(tens, i, self.components[i]),
+                                                             self.ctx)
+                    s = s * np.asarray(ops.to_numpy(g), np.float64)
+        return s
 
     def _tensors(self, grad_keys=()):
         tens = {}
@@ -341,7 +367,7 @@ class EffectModel:
         with dr.suspend_grad():
             return ops.item(self.loss(self._tensors(), mask, n))
 
-    def nll_profiled(self, cells=None) -> float:
+    def nll_profiled(self, cells=None, per_cell: bool = False, by_slot: bool = False):
         """Mean NLL per complex sample over ``cells`` with the white floor
         ``sigma^2`` re-estimated on those cells (the NLL minimised over
         ``sigma^2`` alone, every other parameter as is).
@@ -353,7 +379,12 @@ class EffectModel:
         cell through ``log sigma^2``.  Profiling the one scale parameter on the
         scored cells, for the base and the candidate alike, credits only what
         a candidate predicts there.  Without variance effects it is
-        ``log(mean |Y - X|^2) + 1``.
+        ``log(mean |Y - X|^2 / s) + 1 + mean log s``.
+
+        With ``per_cell`` it returns ``(mean, per-cell mean NLL over the
+        selected cells [n_cells])`` at the profiled floor; with ``by_slot``
+        the floor is profiled per (frame, chirp) slot instead (a disturbance
+        confined to a few chirps then raises only their floor).
         """
         x, v = self.mean_variance_numpy()
         cells = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
@@ -363,18 +394,19 @@ class EffectModel:
         Y = self.Y_numpy[cells]
         X = np.fft.fft(x, axis=-1, norm="ortho")[cells]
         r2 = np.abs(Y - X) ** 2
-        extra = (v - float(np.exp(self.nuisance.values["log_noise"][0])))[cells]
-        extra = np.maximum(extra, 0.0)
-        if not np.any(extra > 0):
-            return float(np.log(max(np.mean(r2), 1e-30)) + 1.0)
-
-        def f(ls):
-            tot = np.exp(ls) + extra
-            return float(np.mean(r2 / tot + np.log(tot)))
-
-        hi = np.log(max(np.mean(r2), 1e-30)) + 1.0
-        return float(minimize_scalar(f, bounds=(hi - 40.0, hi), method="bounded",
-                                     options={"xatol": 1e-6}).fun)
+        s = np.broadcast_to(self.white_shape_numpy(), v.shape)
+        extra = (v - float(np.exp(self.nuisance.values["log_noise"][0])) * s)[cells]
+        s = s[cells]
+        if not by_slot:
+            cell_nll = _profiled_cells(r2, s, extra)
+        else:
+            f, _, _, c = np.nonzero(cells)
+            slot = f * self.ctx.shape[3] + c
+            cell_nll = np.empty(len(slot))
+            for k in np.unique(slot):
+                sel = slot == k
+                cell_nll[sel] = _profiled_cells(r2[sel], s[sel], extra[sel])
+        return (float(np.mean(cell_nll)), cell_nll) if per_cell else float(np.mean(cell_nll))
 
     def loss(self, tens, mask, n, frozen=None):
         """Masked mean NLL ``sum mask (|Y - X|^2 / v + log v) / n`` as a Dr.Jit value (AD)."""
@@ -457,6 +489,24 @@ class EffectModel:
         for (i, k), val in unpack(res.x).items():
             comps[i].values[k] = val
         return {"nll": float(res.fun), "iterations": int(res.nit), "success": bool(res.success)}
+
+
+def _profiled_cells(r2, s, extra) -> np.ndarray:
+    """Per-cell mean NLL ``mean_k (r2 / tot + log tot)``, ``tot = sigma^2 s + extra``,
+    at the ``sigma^2`` that minimises the total over these cells."""
+    extra = np.maximum(extra, 0.0)
+    if not np.any(extra > 0):
+        ls = np.log(max(np.mean(r2 / s), 1e-30))
+    else:
+        def f(ls):
+            tot = np.exp(ls) * s + extra
+            return float(np.mean(r2 / tot + np.log(tot)))
+
+        hi = np.log(max(np.mean(r2 / s), 1e-30)) + 1.0
+        ls = float(minimize_scalar(f, bounds=(hi - 40.0, hi), method="bounded",
+                                   options={"xatol": 1e-6}).x)
+    tot = np.exp(ls) * s + extra
+    return np.mean(r2 / tot + np.log(tot), axis=-1)
 
 
 def _block(tens, i, comp):

@@ -31,8 +31,11 @@ floor) can raise the likelihood of *any* structured residual by widening
 the noise where the residual is large; a mean effect explains it.  Each
 round therefore ranks the mean-kind candidates first and adopts the best
 one when its score is positive; the variance-kind candidates are scored
-(and may be adopted) only in a round where no mean candidate helps.  The
-adopted effect is then refitted jointly with all adopted effects on all
+(and may be adopted) only in a round where no mean candidate helps, and
+only when they help in most (frame, chirp) slots (:data:`MIN_SLOT_SHARE`):
+a stationary noise model that gains in a few chirps only is absorbing a
+localised disturbance (interference, a burst), which is reported as
+unexplained instead.  The adopted effect is then refitted jointly with all adopted effects on all
 cells, and the next round starts.  It stops when nothing helps, and reports
 what stays unexplained.
 """
@@ -59,6 +62,8 @@ class CandidateScore:
     gain_per_sample: float      # per held-out complex sample [nats]
     score: float                # gain - penalty * n_params
     fold_gains: list
+    #: share of the (frame, chirp) slots whose held-out NLL the candidate lowers
+    slot_share: float = 1.0
 
     def to_dict(self) -> dict:
         return {k: (round(v, 6) if isinstance(v, float) else v)
@@ -165,25 +170,53 @@ def _fold_bases(model: EffectModel, folds, maxiter) -> list:
     return out
 
 
+def slot_share(gains: list, tests: list) -> float:
+    """Share of the (frame, chirp) slots with a positive held-out gain.
+
+    ``gains[i]`` holds the per-cell NLL reductions on the held-out cells of
+    fold ``i`` (boolean mask ``tests[i]`` ``[F, T, R, C]``, in its order),
+    each model's white floor profiled per slot
+    (:meth:`~sionna_mmir.effects.model.EffectModel.nll_profiled` with
+    ``by_slot``), so that a floor raised by a few slots does not make every
+    slot look noisier than it is.  A stationary effect (a noise floor, a phase-noise skirt) claims the same
+    statistics in every chirp, so it should help in most slots; a gain from a
+    few slots is a localised disturbance the effect only absorbs.  1.0 when
+    there are fewer than 4 slots.
+    """
+    F, _, _, C = tests[0].shape
+    if F * C < 4:
+        return 1.0
+    per_slot = np.zeros((F, C))
+    for g, test in zip(gains, tests):
+        f, _, _, c = np.nonzero(test)
+        np.add.at(per_slot, (f, c), g)
+    return float(np.mean(per_slot > 0))
+
+
 def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
                     maxiter: int = 150, progress=None) -> list:
     """Held-out scores of ``candidates`` on top of ``model``, best first."""
     bases = _fold_bases(model, folds, maxiter)
     out = []
     for eff in candidates:
-        gains, n_tot = [], 0.0
+        gains, n_tot, cell_gains = [], 0.0, []
         for train, base, nll0, n_test in bases:
             cand = base.copy()
             cand.add(copy.deepcopy(eff), cells=train)      # fresh state per fold
             cand.fit(trainable=[len(cand.components) - 1], cells=train, maxiter=maxiter)
             gains.append(nll0 - cand.nll_profiled(~train) * n_test)
+            if eff.kind == "variance":
+                cell_gains.append(base.nll_profiled(~train, True, by_slot=True)[1]
+                                  - cand.nll_profiled(~train, True, by_slot=True)[1])
             n_tot += n_test
         n_params = cand.components[-1].n_params
         gain = float(np.sum(gains))
         out.append(CandidateScore(name=eff.name, n_params=int(n_params), gain=gain,
                                   gain_per_sample=gain / max(n_tot, 1.0),
                                   score=gain - penalty * n_params,
-                                  fold_gains=[float(g) for g in gains]))
+                                  fold_gains=[float(g) for g in gains],
+                                  slot_share=(slot_share(cell_gains, [~b[0] for b in bases])
+                                              if cell_gains else 1.0)))
         if progress is not None:
             progress(eff.name)
     return sorted(out, key=lambda c: c.score, reverse=True)
@@ -264,14 +297,21 @@ class _Tiers:
         return sorted(out, key=lambda c: c.score, reverse=True)
 
 
+#: a variance effect must lower the held-out NLL in at least this share of the
+#: (frame, chirp) slots (:func:`slot_share`): it models stationary noise
+MIN_SLOT_SHARE = 0.5
+
+
 def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
     """One round's ranking, mean (and scene) candidates first (see the module
     docstring): ``(ranking, best)`` with ``best`` None when nothing should be
     adopted.  Screened candidates are left out."""
     floor = {c.name: max(min_gain, getattr(c, "min_gain_per_sample", 0.0)) for c in pool}
+    kinds_of = {c.name: c.kind for c in pool}
 
     def ok(c):
-        return c.score > 0 and c.gain_per_sample >= floor.get(c.name, min_gain)
+        stationary = kinds_of.get(c.name) != "variance" or c.slot_share >= MIN_SLOT_SHARE
+        return c.score > 0 and c.gain_per_sample >= floor.get(c.name, min_gain) and stationary
 
     ranking = []
     for kinds in (("basis", "mean"), ("variance",)):

@@ -32,12 +32,29 @@ prediction (:class:`~._sensor_common.RowExtension`, predictor of order
 grid, and cut back to the window (error about -40 dB in the tests);
 ``extension=0`` gives the plain DFT-domain product.
 
-Parameters: ``log_fc`` ``[2]`` = (``log10(f_hp / kHz)``, ``log10(f_lp / kHz)``).
-Stage 2 (IF).
+Receiver noise.  Thermal noise of the LNA and mixer passes the same
+filters, so a fraction ``rho`` of the white floor ``sigma^2`` (the rest is
+added after the filters: ADC quantisation and driver noise) is shaped by
+their power gain (:meth:`IFFilter.noise_gain`)::
+
+    s_k = rho |H_hp|^2_k |H_lp(f_k)|^2 + (1 - rho)
+    |H_hp|^2_k := mean of (f / f_hp)^2 / (1 + (f / f_hp)^2) over the bin
+              = 1 - a (atan(u_hi / a) - atan(u_lo / a))      (a = f_hp in bins)
+
+with ``f_k`` the bin's frequency in ``[-f_s / 2, f_s / 2)`` (noise is
+symmetric about DC).  The notch this leaves at near-DC bins is the high-pass's
+most robust signature: the signal-side response alone is a smooth complex
+gain over range that per-object amplitudes absorb when the scene is a few
+compact scatterers.
+
+Parameters: ``log_fc`` ``[2]`` = (``log10(f_hp / kHz)``, ``log10(f_lp / kHz)``),
+``pre_noise`` ``[1]`` = ``rho`` in ``[0, 1]``.  Stage 2 (IF).
 
 Initial values: on a grid of corner pairs, the filtered (extended) model is
 fitted to the data up to one complex gain in closed form; the pair that
-explains the most energy wins (see :meth:`IFFilter._init`).
+explains the most energy is one start, the pair (with ``rho``) whose noise
+shape best explains the residual power spectrum another; the start with the
+lower approximate likelihood wins (see :meth:`IFFilter._init`).
 """
 from __future__ import annotations
 
@@ -50,6 +67,14 @@ from ._sensor_common import (LN10, RowExtension, band_frequencies, check_float, 
 
 dr = ops.dr
 KHZ = 1e3
+
+
+def _bin_power(residual: np.ndarray) -> np.ndarray:
+    """Mean power per range bin (unitary DFT) over the cells that are not all zero, ``[N]``."""
+    R = np.fft.fft(residual.reshape(-1, residual.shape[-1]), axis=-1, norm="ortho")
+    P = np.abs(R) ** 2
+    keep = P.sum(axis=-1) > 0
+    return np.maximum(P[keep].mean(axis=0) if keep.any() else P.mean(axis=0), 1e-300)
 
 
 def butterworth_poles(order: int) -> np.ndarray:
@@ -80,6 +105,14 @@ def highpass_bin_average_numpy(f, f_hp, bin_hz) -> np.ndarray:
     return 1 + 1j * a * d
 
 
+def noise_gain_numpy(f, f_hp, f_lp, order: int, bin_hz, rho) -> np.ndarray:
+    """``s_k`` of the module docstring at frequencies ``f`` [Hz] (NumPy)."""
+    a, u = f_hp / bin_hz, np.abs(np.asarray(f, float)) / bin_hz
+    hp = 1.0 - a * (np.arctan((u + 0.5) / a) - np.arctan((u - 0.5) / a))
+    lp = 1.0 / (1.0 + (np.abs(f) / f_lp) ** (2 * order))
+    return rho * hp * lp + (1.0 - rho)
+
+
 def _highpass_bin_average(a, up, lo):
     """Dr.Jit version of :func:`highpass_bin_average_numpy` (``a``, ``up``, ``lo`` in bins)."""
     d_re = 0.5 * dr.log((a * a + up * up) / (a * a + lo * lo))
@@ -100,12 +133,14 @@ def corner_bounds(ctx):
 
 
 class IFFilter(Effect):
-    """First-order high-pass + Butterworth low-pass (2 parameters, log10 kHz)."""
+    """First-order high-pass + Butterworth low-pass (2 corners, log10 kHz) and the
+    share ``rho`` of the white floor they filter (3 parameters)."""
 
     name = "if_filter"
     kind = "mean"
     stage = 2
     per_unit = True
+    shapes_noise = True
     description = "IF high-pass (1st order) and anti-alias low-pass (Butterworth)"
 
     def __init__(self, lowpass_order: int = 4, band_start: float = -0.1, extension: int = 32,
@@ -121,10 +156,75 @@ class IFFilter(Effect):
     def param_specs(self, ctx, model, residual):
         self.extension.fit(model)
         (hl, hh), (ll, lh) = corner_bounds(ctx)
-        hp, lp = self._init(ctx, model, model + residual, (hl, hh), (ll, lh))
-        return {"log_fc": ParamSpec([hp, lp], lower=[hl, ll], upper=[hh, lh], unit="log10 kHz")}
+        hp, lp, rho = self._init(ctx, model, model + residual, (hl, hh), (ll, lh))
+        return {"log_fc": ParamSpec([hp, lp], lower=[hl, ll], upper=[hh, lh], unit="log10 kHz"),
+                "pre_noise": ParamSpec([rho], lower=0.0, upper=1.0, unit="share of the floor")}
 
     def _init(self, ctx, model, data, hb, lb):
+        """Starting ``(log f_hp, log f_lp, rho)``: the better (by the approximate
+        profiled likelihood of :meth:`_start_nll`) of the signal start
+        (:meth:`_signal_init`, ``rho`` by a 1-D search) and the noise start
+        (:meth:`_noise_init`)."""
+        hp, lp = self._signal_init(ctx, model, data, hb, lb)
+        starts = [(hp, lp, self._noise_init(ctx, data - model, [hp], [lp])[2]),
+                  self._noise_init(ctx, data - model, np.linspace(hb[0], hb[1], 32),
+                                   np.linspace(lb[0], lb[1], 16))]
+        nll = [self._start_nll(ctx, model, data, *st) for st in starts]
+        return starts[int(np.argmin(nll))]
+
+    def _filtered_numpy(self, ctx, model, hp, lp) -> np.ndarray:
+        """``crop(IDFT(H DFT(extend(model))))`` in NumPy."""
+        N = ctx.radar.num_samples
+        ext = self.extension
+        E = ext.matrix if ext.n == N else None
+        xe = ext.extend_numpy(model, E)
+        n = xe.shape[-1]
+        H = response_numpy(band_frequencies(ctx, self.band_start, n), 10 ** hp * KHZ,
+                           10 ** lp * KHZ, self.lowpass_order, ctx.radar.sample_rate / n)
+        return ext.crop_numpy(np.fft.ifft(np.fft.fft(xe, axis=-1) * H, axis=-1), E)
+
+    def _noise_shape(self, ctx, hp, lp, rho) -> np.ndarray:
+        r = ctx.radar
+        f = band_frequencies(ctx, -0.5)
+        return noise_gain_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
+                                r.sample_rate / r.num_samples, rho)
+
+    def _start_nll(self, ctx, model, data, hp, lp, rho) -> float:
+        """Mean NLL per sample of ``data`` under ``g filter(model)`` (``g`` least
+        squares) and the white floor shaped by ``s`` (profiled), cells that are
+        all zero (held out) left out."""
+        xf = self._filtered_numpy(ctx, model, hp, lp)
+        e = np.vdot(xf, xf).real
+        g = np.vdot(xf, data) / e if e > 0 else 0.0
+        return self._shape_nll(ctx, data - g * xf, hp, lp, rho)
+
+    def _shape_nll(self, ctx, residual, hp, lp, rho) -> float:
+        P = _bin_power(residual)
+        s = self._noise_shape(ctx, hp, lp, rho)
+        s2 = max(float(np.mean(P / s)), 1e-300)
+        return float(np.log(s2) + 1.0 + np.mean(np.log(s)))
+
+    def _noise_init(self, ctx, residual, hps, lps):
+        """Best ``(log f_hp, log f_lp, rho)`` for the residual's power spectrum
+        over the given corner grids and ``rho`` in 0, 0.05, ..., 1."""
+        P = _bin_power(residual)
+        r = ctx.radar
+        f, bin_hz = band_frequencies(ctx, -0.5), r.sample_rate / r.num_samples
+        rho = np.linspace(0.0, 1.0, 21)[:, None]
+        best = (np.inf, float(hps[0]), float(lps[-1]), 0.0)
+        for hp in hps:
+            for lp in lps:
+                shaped = noise_gain_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
+                                          bin_hz, 1.0)
+                s = rho * shaped[None] + (1.0 - rho)                        # [rho, N]
+                nll = (np.log(np.maximum(np.mean(P / s, axis=1), 1e-300))
+                       + np.mean(np.log(s), axis=1))
+                j = int(np.argmin(nll))
+                if nll[j] < best[0]:
+                    best = (float(nll[j]), float(hp), float(lp), float(rho[j, 0]))
+        return best[1:]
+
+    def _signal_init(self, ctx, model, data, hb, lb):
         """Best ``(log f_hp, log f_lp)`` on a 32 x 32 grid, by the least-squares
         fit of ``g * crop(IDFT(H DFT(extend(model))))`` to ``data`` (one complex
         gain ``g`` per grid point, in closed form).
@@ -186,6 +286,18 @@ class IFFilter(Effect):
             h = ops.cmul(h, (re / mag, -im / mag))
         return h
 
+    def noise_gain(self, p, ctx):
+        """``s_k`` of the module docstring, ``(1, 1, 1, 1, N)`` (AD in ``p``)."""
+        r = ctx.radar
+        bin_hz = r.sample_rate / r.num_samples
+        nu = np.abs(band_frequencies(ctx, -0.5)) / bin_hz                  # |f| [bins]
+        a = dr.exp(LN10 * scalar(p["log_fc"], 0)) * (KHZ / bin_hz)
+        hp = 1.0 - a * (dr.atan2(last_axis(nu + 0.5), a) - dr.atan2(last_axis(nu - 0.5), a))
+        w = last_axis(nu * bin_hz / KHZ) * dr.exp(-LN10 * scalar(p["log_fc"], 1))
+        lp = 1.0 / (1.0 + w ** (2 * self.lowpass_order))
+        rho = scalar(p["pre_noise"], 0)
+        return rho * hp * lp + (1.0 - rho)
+
     def apply(self, x, p, ctx):
         ext = self.extension
         E = ext.current(lambda: ops.to_numpy(x), ctx.radar.num_samples)
@@ -199,4 +311,5 @@ class IFFilter(Effect):
         H = response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order)
         return {"highpass_corner_khz": round(10 ** hp, 4), "lowpass_corner_khz": round(10 ** lp, 4),
                 "lowpass_order": self.lowpass_order,
+                "filtered_noise_share": round(float(np.ravel(p["pre_noise"])[0]), 4),
                 "min_gain_db_in_band": float(20 * np.log10(np.abs(H[1:]).min()))}
