@@ -24,6 +24,7 @@ from sionna_mmir.benchmark_scenes import (
     rotation_matrix,
     true_materials,
     true_object_materials,
+    true_region_materials,
     true_vertex_materials,
 )
 
@@ -246,6 +247,36 @@ def test_10b_per_object_reduction_is_the_area_weighted_mean(scenes):
     for name, v in red.items():
         assert v.shape == (6,)
         assert np.all(v >= verts[name].min(0) - 1e-12) and np.all(v <= verts[name].max(0) + 1e-12)
+
+
+def test_10c_region_reduction_cuts_objects_at_their_patches(scenes):
+    spec = scenes["hallway"]
+    regions = true_region_materials(spec, max_edge=0.25)
+    whole = true_object_materials(spec, max_edge=0.25)
+    for name, mesh in spec.objects.items():
+        parts = {k: r for k, r in regions.items() if k == name or k.startswith(name + "__")}
+        # the regions partition the object's surface, with its orientation
+        assert sum(r[0].area for r in parts.values()) == pytest.approx(mesh.area, rel=1e-9)
+        if len(parts) == 1:   # no patch: the per-object mean
+            np.testing.assert_allclose(parts[name][2], whole[name], rtol=1e-12)
+    patches = {k: r for k, r in regions.items() if "__patch" in k}
+    assert patches, "the largest object carries at least one patch"
+    for key, (mesh, cls, p) in patches.items():
+        name, j = key.split("__patch")
+        patch = material_patches(spec, name)[int(j)]
+        assert cls == patch.material
+        # the region is the patch's half-weight box: each smoothstep factor >= 1/2
+        d = np.asarray(mesh.vertices) - patch.center
+        for axis, half in ((patch.u, patch.half_u), (patch.v, patch.half_v),
+                           (patch.n, patch.half_n)):
+            assert np.abs(d @ axis).max() <= half + patch.edge / 2 + 1e-9
+        host_normals = spec.objects[name].face_normals
+        assert np.all(np.max(mesh.face_normals @ host_normals.T, axis=1) > 0.999)
+        # it carries the patch's material: eps'' (spanning orders of magnitude)
+        # sits nearer the patch's class than the host's, in log
+        lp = np.log(default_vertex_parameters(patch.material, 77e9)[1])
+        lh = np.log(default_vertex_parameters(spec.materials[name], 77e9)[1])
+        assert abs(np.log(p[1]) - lp) < abs(np.log(p[1]) - lh)
 
 
 def test_11_lidar_box_room_statistics(room_scan):

@@ -172,6 +172,8 @@ def test_07_sensor_radar_and_cell_stems(tmp_path):
     assert not truth_path(tmp_path, "sionna", "lab", "cascade").endswith("/sionna_lab_cascade.h5")
     assert not cell_stem(tmp_path, "fit", "sionna", "lab", "sionna",
                          Budget(iterations=6)).endswith("/fit_sionna_lab_sionna_it6")
+    # nor those of the one with one true material per object
+    assert "truemat" not in truth_path(tmp_path, "sionna", "lab", "cascade")
 
 
 def test_07b_sionna_truth_gets_the_true_per_object_materials():
@@ -194,6 +196,24 @@ def test_07b_sionna_truth_gets_the_true_per_object_materials():
                         for o in spec.objects])
     got = np.array([vals[f"{o}.conductivity"] for o in spec.objects])
     assert np.abs(np.log(got / nominal)).max() > 0.1
+
+
+def test_07c_sionna_truth_renders_one_object_per_material_region():
+    from sionna_mmir.benchmark_scenes import build_scene, true_region_materials
+    from sionna_mmir.compare.truths import sionna_truth
+    from sionna_mmir.radio_materials import eps_imag_from_conductivity
+
+    spec = build_scene("hallway", seed=0)
+    radar = RadarConfig.awr1843(num_chirps=1, position=tuple(spec.radar_position))
+    cap = sionna_truth(spec, radar, samples_per_src=2000)
+    regions = true_region_materials(spec)
+    assert cap.metadata["regions"] == len(regions) > len(spec.objects)
+    vals = cap.metadata["material_values"]
+    assert {k.split(".")[0] for k in vals} == set(regions)
+    for name, (_, _, p) in regions.items():
+        assert eps_imag_from_conductivity(vals[f"{name}.conductivity"], 77e9) \
+            == pytest.approx(p[1], rel=1e-6)
+    assert np.isfinite(cap.adc).all() and np.abs(cap.adc).max() > 0
 
 
 def _plate_spec():

@@ -110,6 +110,7 @@ from .materials import (
     material_patches,
     true_materials,
     true_object_materials,
+    true_region_materials,
     true_vertex_materials,
 )
 
@@ -132,5 +133,6 @@ __all__ = [
     "rotation_matrix",
     "true_materials",
     "true_object_materials",
+    "true_region_materials",
     "true_vertex_materials",
 ]

@@ -12,13 +12,14 @@ progressively less with mmIR:
 ``"sionna"``
     unmodified Sionna RT (:class:`~sionna_mmir.baseline.SionnaBaseline`) on
     the clean geometry with the scene's true materials as far as Sionna can
-    hold them: it has one material per object, so each object gets the
-    surface mean of its true per-vertex materials
-    (:func:`~sionna_mmir.benchmark_scenes.materials.true_object_materials`)
-    mapped the way the baseline parameterises a material
-    (:func:`sionna_material_values`); its own Monte Carlo ``PathSolver`` at
-    depth 3 with :data:`SIONNA_TRUTH_SAMPLES` rays per Tx element, seed 0,
-    isotropic elements (the baseline's).
+    hold them: it has one material per object, so every object is cut into
+    its material regions (host, each patch of another material, each damp
+    blob; :func:`~sionna_mmir.benchmark_scenes.materials.true_region_materials`),
+    one Sionna object per region with the surface mean of the true
+    per-vertex materials over that region, mapped the way the baseline
+    parameterises a material (:func:`baseline_material_values`); its own
+    Monte Carlo ``PathSolver`` at depth 3 with :data:`SIONNA_TRUTH_SAMPLES`
+    rays per Tx element, seed 0, isotropic elements (the baseline's).
 ``"independent"``
     the plain NumPy physical-optics reference
     (:func:`~sionna_mmir.independent.reference_truth`, no code shared with
@@ -52,9 +53,9 @@ SIONNA_TRUTH_SAMPLES = {"cascade": 100_000, "awr1843": 1_000_000}
 #: receiver noise under the peak ADC sample [dB] (as the benchmark truth)
 NOISE_DB = -40.0
 #: name of a truth in cache file names where it differs from the truth's name:
-#: the Sionna truth with true materials must not read the files of the one
-#: rendered with nominal materials
-CACHE_LABELS = {"sionna": "sionna-truemat"}
+#: the Sionna truth with per-region true materials must not read the files of
+#: earlier definitions (nominal materials, one true mean per object)
+CACHE_LABELS = {"sionna": "sionna-regions"}
 
 
 def cache_label(truth: str) -> str:
@@ -102,12 +103,12 @@ def _with_noise(adc: np.ndarray, seed: int, noise_db: float) -> np.ndarray:
     return adc + sigma * (rng.standard_normal(adc.shape) + 1j * rng.standard_normal(adc.shape))
 
 
-def sionna_material_values(spec, seed: int = 0, frequency_hz: float = 77e9) -> dict:
-    """The true materials of ``spec`` as :class:`~sionna_mmir.baseline.SionnaBaseline` values.
+def baseline_material_values(params: dict, frequency_hz: float = 77e9) -> dict:
+    """Material parameters ``{name: (6,)}`` as :class:`~sionna_mmir.baseline.SionnaBaseline` values.
 
-    Per object, the surface mean of the true per-vertex parameters
-    (:func:`~sionna_mmir.benchmark_scenes.materials.true_object_materials`)
-    mapped onto the per-object scalars the baseline has for them:
+    ``params`` holds ``[eps_real, eps_imag, sigma_h, l_c, tau, d]`` per
+    object (e.g. surface means of the true per-vertex materials), mapped
+    onto the per-object scalars the baseline has for them:
     ``relative_permittivity = eps_real``, ``conductivity = 2 pi f eps0
     eps_imag`` (ITU-R P.2040-3 2.1.2 at the carrier) and ``thickness = d``.
     The baseline has no counterpart of the roughness terms (``sigma_h``,
@@ -115,34 +116,51 @@ def sionna_material_values(spec, seed: int = 0, frequency_hz: float = 77e9) -> d
     keep their starting values, as in every Sionna render here.  Returns
     ``{"<object>.<param>": float}`` for :meth:`SionnaBaseline.set_values`.
     """
-    from ..benchmark_scenes.materials import true_object_materials
     from ..radio_materials.itu_table import EPSILON_0
 
     out = {}
-    for name, p in true_object_materials(spec, seed, frequency_hz=frequency_hz).items():
+    for name, p in params.items():
         out[f"{name}.relative_permittivity"] = float(p[0])
         out[f"{name}.conductivity"] = float(2 * np.pi * frequency_hz * EPSILON_0 * p[1])
         out[f"{name}.thickness"] = float(p[5])
     return out
 
 
+def sionna_material_values(spec, seed: int = 0, frequency_hz: float = 77e9) -> dict:
+    """The true materials of ``spec`` per object, as :class:`SionnaBaseline` values.
+
+    Per object, the surface mean of the true per-vertex parameters
+    (:func:`~sionna_mmir.benchmark_scenes.materials.true_object_materials`)
+    through :func:`baseline_material_values`: what a model that keeps one
+    material per scene object can hold of the truth at best.
+    """
+    from ..benchmark_scenes.materials import true_object_materials
+
+    return baseline_material_values(true_object_materials(spec, seed, frequency_hz=frequency_hz),
+                                    frequency_hz)
+
+
 def sionna_truth(spec, radar, *, samples_per_src: int, seed: int = 0,
                  noise_db: float = NOISE_DB):
-    """Sionna RT's render of the clean scene with its per-object true materials (a ``Capture``)."""
+    """Sionna RT's render of the clean scene cut into true material regions (a ``Capture``)."""
     from ..baseline import SionnaBaseline
+    from ..benchmark_scenes.materials import true_region_materials
     from ..captures.capture import Capture
     from ..paths.render import to_numpy
 
     t0 = time.perf_counter()
-    base = SionnaBaseline(dict(spec.objects), dict(spec.materials), radar, max_depth=3,
+    regions = true_region_materials(spec, seed)
+    base = SionnaBaseline({k: r[0] for k, r in regions.items()},
+                          {k: r[1] for k, r in regions.items()}, radar, max_depth=3,
                           samples_per_src=int(samples_per_src), seed=seed)
-    values = sionna_material_values(spec, seed, base.frequency)
+    values = baseline_material_values({k: r[2] for k, r in regions.items()}, base.frequency)
     base.set_values(values)
     adc = to_numpy(base.render())[None].astype(np.complex128)
     adc = _with_noise(adc, seed, noise_db)
     meta = {"scene": spec.name, "renderer": "sionna.rt PathSolver (SionnaBaseline)",
             "samples_per_src": int(samples_per_src), "max_depth": 3,
-            "materials": "true, per-object surface mean", "material_values": values,
+            "materials": "true, surface mean per material region (host, patches, blobs)",
+            "regions": len(regions), "material_values": values,
             "noise_db": noise_db, "seconds": time.perf_counter() - t0}
     return Capture(adc.astype(np.complex64), radar, meta, "sionna_mmir.compare.truths.sionna")
 
