@@ -6,13 +6,16 @@ How much the Sionna RT truth's materials are worth to each model, on each
 sensor, with no fitting: mmIR (the cross-truth table's ``table2`` model,
 default beams) and the Sionna RT baseline (30k rays per Tx element) on the
 LiDAR-like scaffold, rendered once with the nominal ITU classes (the fits'
-start) and once with the truth's own per-object materials (the oracle:
-``sionna_material_values``, i.e. eps', eps'' and thickness of each object's
-surface mean; mmIR keeps its nominal roughness terms, of which the truth
-holds nothing), scored against the ``sionna`` truth's cascade and AWR1843
-captures (RA correlation, two evaluation seeds).  The gain of the oracle
-bounds what a material fit can carry from one sensor to the other under
-this truth.  One interpreter per scene; results cached under ``--cache``.
+start) and once with the truth's own materials (the oracle), scored against
+the ``sionna`` truth's cascade and AWR1843 captures (RA correlation, two
+evaluation seeds).  The truth holds one material per region (each object
+cut at its patches, ``true_region_materials``): mmIR's oracle gives every
+scaffold vertex the eps', eps'' and thickness of the region it lies in
+(``region_names``; its roughness terms stay nominal, the truth holds none);
+Sionna RT, one material per object, gets each object's surface mean
+(``sionna_material_values``).  The gain of the oracle bounds what a
+material fit can carry from one sensor to the other under this truth.  One
+interpreter per scene; results cached under ``--cache``.
 """
 from __future__ import annotations
 
@@ -26,24 +29,24 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 SENSORS = ("cascade", "awr1843")
 
 
-def _oracle_mmir(spec, meshes, radar, values):
-    """``(model, nominal latents, oracle latents)`` of the table's mmIR model."""
+def _oracle_mmir(spec, meshes, radar):
+    """``(model, nominal latents, oracle latents)`` of the table's mmIR model: each
+    scaffold vertex gets the truth's eps', eps'' and thickness of its region."""
     import numpy as np
 
+    from sionna_mmir.benchmark_scenes.materials import region_names, true_region_materials
     from sionna_mmir.compare.evidence import TABLE2, mmir_model
-    from sionna_mmir.benchmark_scenes.materials import FREQUENCY_HZ
     from sionna_mmir.fit import reparam
-    from sionna_mmir.radio_materials import eps_imag_from_conductivity
 
+    regions = true_region_materials(spec)
     m = mmir_model(spec, meshes, radar, TABLE2)
     z0 = m.latents()
     z1 = dict(z0)
-    for name in meshes:
-        phys = reparam.to_physical(z0[f"{name}.materials"]).copy()
-        phys[:, 0] = values[f"{name}.relative_permittivity"]
-        phys[:, 1] = eps_imag_from_conductivity(values[f"{name}.conductivity"], FREQUENCY_HZ)
-        phys[:, 5] = values[f"{name}.thickness"]
-        z1[f"{name}.materials"] = reparam.to_latent(np.asarray(phys))
+    for name, mesh in meshes.items():
+        phys = np.array(reparam.to_physical(z0[f"{name}.materials"]), dtype=float)
+        truth = np.stack([regions[r][2] for r in region_names(spec, name, mesh.vertices)])
+        phys[:, [0, 1, 5]] = truth[:, [0, 1, 5]]
+        z1[f"{name}.materials"] = reparam.to_latent(phys)
     return m, z0, z1
 
 
@@ -61,7 +64,7 @@ def one_scene(scene: str, cache: str) -> dict:
     for sensor in SENSORS:
         cap = cached_truth(cache, "sionna", spec, sensor)
         ra_ref = target_ra(cap.frames, cap.radar)
-        m, z0, z1 = _oracle_mmir(spec, meshes, cap.radar, values)
+        m, z0, z1 = _oracle_mmir(spec, meshes, cap.radar)
         for tag, z in (("nominal", z0), ("oracle", z1)):
             metrics = evaluate(m, z, ra_ref, cap.frames[0])[0]
             out[f"table2.{sensor}.{tag}"] = metrics["ra_correlation"]
@@ -86,10 +89,12 @@ def markdown(rows, scenes) -> list:
         "Reproduce: `.venv/bin/python comparisons/run_sionna_truth_oracle.py "
         f"--scenes {','.join(scenes)}`.",
         "",
-        "Truth: `sionna` (Sionna RT PathSolver on the clean scene with the true materials as "
-        "per-object surface means, 100k rays per Tx element on the cascade, 1M on the AWR1843). "
-        "Models on the LiDAR-like scaffold, no fitting: nominal = the ITU classes the fits start "
-        "from; oracle = the truth's own per-object eps', eps'' and thickness. mmIR: the "
+        "Truth: `sionna` (Sionna RT PathSolver on the clean scene cut into its true material "
+        "regions, each with its true surface mean, 100k rays per Tx element on the cascade, 1M "
+        "on the AWR1843). Models on the LiDAR-like scaffold, no fitting: nominal = the ITU "
+        "classes the fits start from; oracle = the truth's own eps', eps'' and thickness, per "
+        "region for mmIR (each scaffold vertex takes its region's), per object (the surface "
+        "mean) for Sionna RT, which holds one material per object. mmIR: the "
         "cross-truth `table2` model with default beams; Sionna RT: the baseline at 30k rays per "
         "Tx element. RA correlation, two evaluation seeds.",
         "",

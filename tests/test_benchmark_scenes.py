@@ -24,6 +24,7 @@ from sionna_mmir.benchmark_scenes import (
     rotation_matrix,
     true_materials,
     true_object_materials,
+    region_names,
     true_region_materials,
     true_vertex_materials,
 )
@@ -259,6 +260,9 @@ def test_10c_region_reduction_cuts_objects_at_their_patches(scenes):
         assert sum(r[0].area for r in parts.values()) == pytest.approx(mesh.area, rel=1e-9)
         if len(parts) == 1:   # no patch: the per-object mean
             np.testing.assert_allclose(parts[name][2], whole[name], rtol=1e-12)
+        # every face of a region is named that region by the point rule
+        for key, (piece, _, _) in parts.items():
+            assert set(region_names(spec, name, piece.triangles_center)) == {key}
     patches = {k: r for k, r in regions.items() if "__patch" in k}
     assert patches, "the largest object carries at least one patch"
     for key, (mesh, cls, p) in patches.items():

@@ -401,6 +401,33 @@ def _cut_box(mesh, patch):
     return inside, rest
 
 
+def _in_box(patch, points) -> np.ndarray:
+    """``points`` (N, 3) inside the patch's half-weight box (see :func:`_cut_box`)."""
+    d = np.asarray(points, dtype=float) - patch.center
+    inside = np.ones(len(d), dtype=bool)
+    for axis, half in ((patch.u, patch.half_u), (patch.v, patch.half_v),
+                       (patch.n, patch.half_n)):
+        inside &= np.abs(d @ axis) <= half + patch.edge / 2
+    return inside
+
+
+def region_names(spec, mesh_name: str, points, seed: int = 0) -> np.ndarray:
+    """The :func:`true_region_materials` region of each point (N, 3) on object ``mesh_name``.
+
+    The same rule as the cut: the first patch whose half-weight box holds the
+    point, else the host.  Returns an object array of region names.
+    """
+    _check(spec, mesh_name)
+    x = np.asarray(points, dtype=float)
+    out = np.full(len(x), mesh_name, dtype=object)
+    free = np.ones(len(x), dtype=bool)
+    for j, patch in enumerate(material_patches(spec, mesh_name, seed)):
+        sel = free & _in_box(patch, x)
+        out[sel] = f"{mesh_name}__patch{j}"
+        free &= ~sel
+    return out
+
+
 def true_region_materials(spec, seed: int = 0, max_edge: float = 0.08,
                           frequency_hz: float = FREQUENCY_HZ) -> dict:
     """Every object cut into its material regions, each with its true surface mean.

@@ -18,8 +18,9 @@ import numpy as np
 #: what each truth is, in one line (table legends)
 TRUTH_LABELS = {
     "mmir": "mmIR facet quadrature (mmIR's own solver: self-referential for mmIR)",
-    "sionna": "Sionna RT PathSolver, the true materials as per-object surface means "
-              "(Sionna's own renderer: self-referential for the Sionna baseline)",
+    "sionna": "Sionna RT PathSolver, objects cut into their true material regions, each "
+              "with its true surface mean (Sionna's own renderer: self-referential for the "
+              "Sionna baseline)",
     "independent": "independent NumPy physical-optics reference (shares no code with either)",
 }
 #: display names of the models
