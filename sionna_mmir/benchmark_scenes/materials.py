@@ -358,13 +358,22 @@ def true_object_materials(spec, seed: int = 0, max_edge: float = 0.08,
 
 
 
+def _half_weight_box(patch) -> list:
+    """``[(axis, half extent)]`` of the box where each of the patch's three
+    smoothstep factors is at least 1/2 (``half + edge / 2`` along ``u``, ``v``, ``n``)."""
+    return [(axis, half + patch.edge / 2)
+            for axis, half in ((patch.u, patch.half_u), (patch.v, patch.half_v),
+                               (patch.n, patch.half_n))]
+
+
 def _slice(mesh, normal, origin):
     """The part of ``mesh`` on the side of the plane that ``normal`` points to (or ``None``)."""
     import trimesh
 
     if mesh is None or len(mesh.faces) == 0:
         return None
-    v, f = trimesh.intersections.slice_faces_plane(np.asarray(mesh.vertices), np.asarray(mesh.faces),
+    v, f = trimesh.intersections.slice_faces_plane(np.asarray(mesh.vertices),
+                                                  np.asarray(mesh.faces),
                                                   np.asarray(normal, float),
                                                   np.asarray(origin, float))[:2]
     if len(f) == 0:
@@ -376,38 +385,27 @@ def _slice(mesh, normal, origin):
 
 
 def _cut_box(mesh, patch):
-    """``(inside, outside)`` of ``mesh`` cut along the patch's half-weight box.
-
-    The box is where each of the patch's three smoothstep factors is at
-    least 1/2: half sides ``half + edge / 2`` along ``u``, ``v`` and ``n``.
-    The cut runs through the faces (no refinement of the rest of the mesh).
-    """
+    """``(inside, outside)`` of ``mesh`` cut along the patch's :func:`_half_weight_box`
+    (planar slices through the faces; either part may be ``None``)."""
     import trimesh
 
     inside, outside = mesh, []
-    for axis, half in ((patch.u, patch.half_u), (patch.v, patch.half_v),
-                       (patch.n, patch.half_n)):
+    for axis, extent in _half_weight_box(patch):
         for sign in (1.0, -1.0):
-            origin = patch.center + sign * (half + patch.edge / 2) * axis
-            out = _slice(inside, sign * axis, origin)
-            if out is not None:
-                outside.append(out)
+            origin = patch.center + sign * extent * axis
+            beyond = _slice(inside, sign * axis, origin)
+            if beyond is not None:
+                outside.append(beyond)
             inside = _slice(inside, -sign * axis, origin)
-            if inside is None:
-                break
-        if inside is None:
-            break
-    rest = trimesh.util.concatenate(outside) if outside else None
-    return inside, rest
+    return inside, (trimesh.util.concatenate(outside) if outside else None)
 
 
 def _in_box(patch, points) -> np.ndarray:
-    """``points`` (N, 3) inside the patch's half-weight box (see :func:`_cut_box`)."""
+    """``points`` (N, 3) inside the patch's :func:`_half_weight_box`."""
     d = np.asarray(points, dtype=float) - patch.center
     inside = np.ones(len(d), dtype=bool)
-    for axis, half in ((patch.u, patch.half_u), (patch.v, patch.half_v),
-                       (patch.n, patch.half_n)):
-        inside &= np.abs(d @ axis) <= half + patch.edge / 2
+    for axis, extent in _half_weight_box(patch):
+        inside &= np.abs(d @ axis) <= extent
     return inside
 
 
@@ -471,6 +469,7 @@ def true_region_materials(spec, seed: int = 0, max_edge: float = 0.08,
         if host is not None:
             out[name] = entry(name, host, spec.materials[name])
     return out
+
 
 def describe_true_materials(spec, seed: int = 0) -> str:
     """Human-readable list of each object's patches and blobs."""

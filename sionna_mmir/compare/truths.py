@@ -13,8 +13,8 @@ progressively less with mmIR:
     unmodified Sionna RT (:class:`~sionna_mmir.baseline.SionnaBaseline`) on
     the clean geometry with the scene's true materials as far as Sionna can
     hold them: it has one material per object, so every object is cut into
-    its material regions (host, each patch of another material, each damp
-    blob; :func:`~sionna_mmir.benchmark_scenes.materials.true_region_materials`),
+    its material regions (each patch of another material and the host;
+    :func:`~sionna_mmir.benchmark_scenes.materials.true_region_materials`),
     one Sionna object per region with the surface mean of the true
     per-vertex materials over that region, mapped the way the baseline
     parameterises a material (:func:`baseline_material_values`); its own
