@@ -587,3 +587,26 @@ def test_20_moving_scatterer_bad_arguments_raise_config_error():
     with pytest.raises(ConfigError, match="range_margin"):
         MovingScatterer(range_margin=-1.0)
     assert MovingScatterer.repeatable is True
+
+
+def test_20b_moving_scatterer_on_one_frame_needs_chirps():
+    """One frame identifies a mover by its chirp-to-chirp phase, one chirp does not."""
+    eff = MovingScatterer()
+    assert not eff.supports(EffectContext(RadarConfig.awr1843(num_chirps=1)))
+    assert eff.supports(EffectContext(RadarConfig.awr1843(num_chirps=1), num_frames=2,
+                                      frame_period=0.02))
+    radar = RadarConfig.awr1843(num_chirps=16)
+    ctx = EffectContext(radar)
+    assert eff.supports(ctx)
+    # a walker at 4 m, 1 m/s receding, on one frame of 16 chirp loops: the
+    # velocity comes from the chirp-to-chirp phase (direct synthesis as truth)
+    r, az, v, a_phys = 4.0, 10.0, 1.0, 0.5
+    rho = 2 * v / C
+    meas = direct_adc(radar, a_phys, point_target_delays(radar, r * unit_vectors(az)), rho)[None]
+    rng = np.random.default_rng(5)
+    meas = meas + _noise(meas.shape, rng, std=0.02)
+    m = EffectModel(ctx, meas, np.zeros_like(meas))
+    comp = m.add(MovingScatterer())
+    m.fit()
+    assert comp.values["range"][0] == pytest.approx(r, abs=0.02)
+    assert comp.values["velocity"][0] == pytest.approx(v, abs=0.1)

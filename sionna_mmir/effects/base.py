@@ -102,6 +102,10 @@ class Effect:
         """Whether a better scene explains it (stage 0), not the sensor."""
         return self.stage == 0
 
+    def supports(self, ctx) -> bool:
+        """Whether a capture of ``ctx``'s shape can identify the effect (default: any)."""
+        return True
+
     def param_specs(self, ctx, model: np.ndarray, residual: np.ndarray) -> dict:
         """Parameter blocks with data-driven initial values.
 

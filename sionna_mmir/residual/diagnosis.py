@@ -454,9 +454,9 @@ def _check_candidates(candidates, model) -> list:
     names = [c.name for c in candidates]
     if len(set(names)) != len(names):
         raise ConfigError(f"diagnose: candidate names repeat: {names}")
-    # effects that need more frames than the capture has (e.g. a per-frame mover
-    # on one frame is a static scatterer with a free velocity) are not candidates
-    return [c for c in candidates if getattr(c, "min_frames", 1) <= model.ctx.num_frames]
+    # effects the capture's shape cannot identify (a mover on one chirp of one
+    # frame is a static scatterer with a free velocity) are not candidates
+    return [c for c in candidates if c.supports(model.ctx)]
 
 
 def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int | None = None,

@@ -230,9 +230,6 @@ class MovingScatterer(Effect):
     kind = "mean"
     stage = 0
     repeatable = True
-    #: frames needed for a track: on one frame this is a missing scatterer with a
-    #: velocity, and the held-out score cannot tell it from ``missing_scatterer``
-    min_frames = 2
     description = "moving point target (per-frame range, azimuth, velocity, amplitude)"
 
     def __init__(self, min_range: float = 0.3, max_range: float | None = None,
@@ -249,6 +246,12 @@ class MovingScatterer(Effect):
         self.max_speed = float(max_speed)
         self.range_margin = float(range_margin)
         self.az_limit = float(az_limit)
+
+    def supports(self, ctx) -> bool:
+        """A track over frames, or the chirp-to-chirp phase of one frame: on one
+        chirp of one frame a mover is a static scatterer with a free velocity,
+        which the held-out score cannot tell from ``missing_scatterer``."""
+        return ctx.num_frames >= 2 or ctx.shape[3] >= 2
 
     @single_blas
     def param_specs(self, ctx, model, residual):
