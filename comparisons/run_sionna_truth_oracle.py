@@ -33,19 +33,17 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 SENSORS = ("cascade", "awr1843")
 
 
-def _oracle_mmir(spec, meshes, radar, truth: str):
+def _oracle_mmir(spec, meshes, radar, regions):
     """``(model, nominal latents, oracle latents)`` of the table's mmIR model: each
     scaffold vertex gets the truth's eps', eps'' and thickness of its region
     (``sionna``) or the whole true parameter vector at its position (the
-    per-vertex truths)."""
+    per-vertex truths, ``regions`` None)."""
     import numpy as np
 
-    from sionna_mmir.benchmark_scenes.materials import (region_names, true_region_materials,
-                                                        true_vertex_materials)
+    from sionna_mmir.benchmark_scenes.materials import region_names, true_vertex_materials
     from sionna_mmir.compare.evidence import TABLE2, mmir_model
     from sionna_mmir.fit import reparam
 
-    regions = true_region_materials(spec) if truth == "sionna" else None
     m = mmir_model(spec, meshes, radar, TABLE2)
     z0 = m.latents()
     z1 = dict(z0)
@@ -65,16 +63,18 @@ def one_scene(scene: str, cache: str, truth: str = "sionna") -> dict:
     from sionna_mmir.benchmark_scenes import build_scene
     from sionna_mmir.compare.evidence import Budget, scaffold, sionna_model
     from sionna_mmir.compare.harness import evaluate, target_ra
+    from sionna_mmir.benchmark_scenes.materials import true_region_materials
     from sionna_mmir.compare.truths import cached_truth, sionna_material_values
 
     spec = build_scene(scene, seed=0)
     meshes = scaffold(spec)
     values = {k: v for k, v in sionna_material_values(spec).items() if k.split(".")[0] in meshes}
+    regions = true_region_materials(spec) if truth == "sionna" else None
     out = {"scene": scene}
     for sensor in SENSORS:
         cap = cached_truth(cache, truth, spec, sensor)
         ra_ref = target_ra(cap.frames, cap.radar)
-        m, z0, z1 = _oracle_mmir(spec, meshes, cap.radar, truth)
+        m, z0, z1 = _oracle_mmir(spec, meshes, cap.radar, regions)
         for tag, z in (("nominal", z0), ("oracle", z1)):
             metrics = evaluate(m, z, ra_ref, cap.frames[0])[0]
             out[f"table2.{sensor}.{tag}"] = metrics["ra_correlation"]

@@ -351,10 +351,19 @@ def true_object_materials(spec, seed: int = 0, max_edge: float = 0.08,
     resolve the 2 cm-edged patches' 0.3-1.2 m sides) and reduced by
     :func:`area_weighted_mean`.
     """
-    refined = spec.refined(max_edge)
-    return {name: area_weighted_mean(mesh, p)
-            for (name, mesh), p in zip(refined.items(),
-                                        true_materials(spec, seed, refined, frequency_hz).values())}
+    return {name: _surface_mean(spec, name, mesh, seed, max_edge, frequency_hz)
+            for name, mesh in spec.objects.items()}
+
+
+def _surface_mean(spec, name, mesh, seed, max_edge, frequency_hz) -> np.ndarray:
+    """:func:`area_weighted_mean` of the true materials of object ``name`` over
+    ``mesh`` (the object or a piece of it) refined to ``max_edge`` [m]."""
+    import trimesh
+
+    v, f = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=max_edge,
+                                            max_iter=20)
+    fine = trimesh.Trimesh(vertices=v, faces=f, process=False)
+    return area_weighted_mean(fine, true_vertex_materials(spec, name, v, seed, frequency_hz))
 
 
 
@@ -450,14 +459,8 @@ def true_region_materials(spec, seed: int = 0, max_edge: float = 0.08,
         ``<object>__patch<j>`` and carry the patch's material class.
         Empty regions are left out.
     """
-    import trimesh
-
     def entry(name, mesh, cls):
-        v, f = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces,
-                                                max_edge=max_edge, max_iter=20)
-        fine = trimesh.Trimesh(vertices=v, faces=f, process=False)
-        p = true_vertex_materials(spec, name, v, seed, frequency_hz)
-        return mesh, cls, area_weighted_mean(fine, p)
+        return mesh, cls, _surface_mean(spec, name, mesh, seed, max_edge, frequency_hz)
 
     out = {}
     for name, mesh in spec.objects.items():
