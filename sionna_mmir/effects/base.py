@@ -92,6 +92,10 @@ class Effect:
     #: mean the same on averaged data (a static, linear effect); the residual
     #: loop scores such candidates on chirp-averaged data
     chirp_static = True
+    #: ``apply(x) = x + s(p)`` with ``s`` independent of ``x`` (an extra path):
+    #: a chirp-varying additive effect can be held fixed on chirp-averaged data
+    #: (:class:`~sionna_mmir.effects.frozen.FrozenPart`)
+    additive = False
     #: a property of the radar unit (same on every capture of it), not of the
     #: scene or the moment: calibrated once into a sensor profile
     #: (:mod:`sionna_mmir.effects.profile`), not cross-validated inside one frame

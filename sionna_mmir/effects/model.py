@@ -174,22 +174,30 @@ class EffectModel:
         with dr.suspend_grad():
             return ops.to_numpy(self._base(self._tensors(), order))
 
-    def chirp_averaged(self) -> "EffectModel":
+    def chirp_averaged(self, freeze: bool = False) -> "EffectModel":
         """This model on the data averaged over chirp loops (``C = 1``).
 
         Every component must be :attr:`~.base.Effect.chirp_static` (applying it
         commutes with the average), so its values carry over unchanged; the
         normalisation (``scale``, ``base_gain``) is kept, so values fitted on
         the averaged model mean the same on this one.  The white floor is
-        re-estimated (averaging divides it by ``C``).  Returns ``self`` when
+        re-estimated (averaging divides it by ``C``).  With ``freeze``, a
+        chirp-varying component that is an additive scene effect or a
+        variance effect enters as a :class:`~.frozen.FrozenPart` at its
+        current values instead (the model is then for scoring other
+        components, not for fitting that one).  Returns ``self`` when
         ``C == 1``.
         """
+        from .frozen import averageable
+
         C = self.ctx.shape[3]
         if C == 1:
             return self
-        moving = [c.effect.name for c in self.components if not c.effect.chirp_static]
+        moving = [c.effect.name for c in self.components if not c.effect.chirp_static
+                  and not (freeze and averageable(c.effect))]
         if moving:
             raise InputValueError(f"chirp_averaged: {moving} change from chirp to chirp")
+        parts = self._frozen_parts() if freeze else {}
         basis = self.ctx.basis
         if basis is not None:
             basis = dataclasses.replace(basis, adc=basis.adc.mean(axis=3, keepdims=True))
@@ -208,11 +216,41 @@ class EffectModel:
             k = self.base_gain / self.scale
             new.basis_t = [ops.tensor(np.broadcast_to(B[None], ctx.shape) * k) for B in basis.adc]
         new.nuisance = _copy_comp(self.nuisance)
-        new.components = [_copy_comp(c) for c in self.components]
+        new.components = [parts.get(id(c)) or _copy_comp(c) for c in self.components]
         r = new.y - new.mean_variance_numpy()[0]
         new.nuisance.values["log_noise"] = np.array([np.log(max(np.mean(np.abs(r) ** 2),
                                                                  1e-12))])
         return new
+
+    def can_average(self) -> bool:
+        """Whether :meth:`chirp_averaged` with ``freeze=True`` can represent this model."""
+        from .frozen import averageable
+
+        return all(averageable(c.effect) for c in self.components)
+
+    @_one_thread
+    def _frozen_parts(self) -> dict:
+        """``{id(component): Component(FrozenPart)}`` for the chirp-varying components."""
+        from .frozen import FrozenPart
+
+        C = self.ctx.shape[3]
+        out = {}
+        with dr.suspend_grad():
+            tens = self._tensors()
+            x, X, _ = self._forward(tens)
+            for i, c in enumerate(self.components):
+                if c.effect.chirp_static:
+                    continue
+                blk = _block(tens, i, c)
+                if c.effect.kind == "variance":
+                    v = ops.to_numpy(c.effect.variance(x, X, blk, self.ctx)
+                                     + dr.zeros(mi.TensorXf, X[0].shape))
+                    part = FrozenPart(c.effect, variance=v.mean(axis=3, keepdims=True) / C)
+                else:
+                    s = ops.to_numpy(c.effect.apply(ops.zeros_like(self.b_t), blk, self.ctx))
+                    part = FrozenPart(c.effect, signal=s.mean(axis=3, keepdims=True))
+                out[id(c)] = Component(effect=part, specs={}, values={})
+        return out
 
     def remove(self, comp: Component):
         self.components.remove(comp)

@@ -255,7 +255,7 @@ def _backfit(model: EffectModel, newest, maxiter: int):
     k = _position(model, newest)
     best = _restart(model, model.nll(), maxiter)
     for i in range(len(model.components)):
-        if i == k or model.components[i].effect.kind == "basis":
+        if i == k or model.components[i].effect.kind == "basis" or _frozen(model.components[i]):
             continue
         trial = model.copy()
         old = trial.components[i]
@@ -278,12 +278,16 @@ def _position(model: EffectModel, comp) -> int:
 class _Tiers:
     """The models candidates are scored on: the chirp-averaged model for the
     chirp-static candidates (as many nats from a fraction of the data), the
-    full model for the rest; with their cross-validation folds."""
+    full model for the rest; with their cross-validation folds.  Adopted
+    chirp-varying components enter the averaged model at their current values
+    (:class:`~sionna_mmir.effects.frozen.FrozenPart`: a mover's averaged path,
+    a noise effect's averaged variance); the full model is used for every
+    candidate only when one of them has no averaged counterpart (ego-motion,
+    clipping)."""
 
     def __init__(self, model, folds, seed, groups):
         self.model = model
-        static = all(c.effect.chirp_static for c in model.components)
-        self.avg = model.chirp_averaged() if static else model
+        self.avg = model.chirp_averaged(freeze=True) if model.can_average() else model
         self.folds = _folds(model.ctx.shape[:4], folds, seed, groups)[0]
         self.avg_folds = (self.folds if self.avg is model
                           else _folds(self.avg.ctx.shape[:4], folds, seed, groups)[0])
@@ -329,20 +333,31 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
 def _adopt(model, eff, maxiter):
     """Add ``eff`` and refit everything jointly (backfitting earlier sensor
     effects); on chirp-averaged data when every component allows it (then the
-    full model takes the values and refits its noise floor).  Returns the new
-    component."""
-    static = eff.chirp_static and all(c.effect.chirp_static for c in model.components)
-    work = model.chirp_averaged() if static else model
+    full model takes the values and refits its noise floor; chirp-varying
+    components held fixed there are refitted jointly with the rest on the
+    full data).  Returns the new component."""
+    static = eff.chirp_static and model.can_average()
+    work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     work.fit(maxiter=2 * maxiter)
     comp = _backfit(work, comp, maxiter)
-    if work is not model:                   # the values carry over; refit the floor only
+    if work is not model:                   # the values carry over
         k = _position(work, comp)
-        model.components = [_copy_component(c) for c in work.components]
+        source = {id(c.effect): c for c in model.components}
+        model.components = [source[id(c.effect.source)] if _frozen(c) else _copy_component(c)
+                            for c in work.components]
         model.nuisance.values["gain"] = np.array(work.nuisance.values["gain"], copy=True)
-        model.fit(trainable=[], maxiter=maxiter)
+        frozen = any(_frozen(c) for c in work.components)
+        model.fit(trainable=None if frozen else [], maxiter=2 * maxiter if frozen else maxiter)
         comp = model.components[k]
     return comp
+
+
+def _frozen(comp) -> bool:
+    """Whether ``comp`` stands in, fixed, for a chirp-varying component."""
+    from ..effects.frozen import FrozenPart
+
+    return isinstance(comp.effect, FrozenPart)
 
 
 def _copy_component(c):

@@ -230,6 +230,7 @@ class MovingScatterer(Effect):
     kind = "mean"
     stage = 0
     repeatable = True
+    additive = True
     description = "moving point target (per-frame range, azimuth, velocity, amplitude)"
 
     def __init__(self, min_range: float = 0.3, max_range: float | None = None,

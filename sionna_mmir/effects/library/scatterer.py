@@ -285,6 +285,7 @@ class MissingScatterer(Effect):
     kind = "mean"
     stage = 0
     repeatable = True
+    additive = True
     description = "static point scatterer the scene lacks (exact per-pair delays)"
 
     def __init__(self, min_range: float = 0.1, max_range: float | None = None,
