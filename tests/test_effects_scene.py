@@ -365,6 +365,31 @@ def test_10_ghost_delays_and_signal_match_a_hand_computation():
         np.linalg.norm(img), abs=radar.range_resolution / 8)
 
 
+def test_10b_ghost_scan_scores_equal_a_brute_force_least_squares_fit():
+    """The plane scan's separable scores (``ghost_scores``) are the energy an
+    explicit least-squares fit of the two templates ``[T, R, N]`` removes
+    (``numpy.linalg.lstsq`` per image point, held-out channel zeroed)."""
+    from sionna_mmir.effects.library.ghost import ghost_scores, ghost_templates, image_point
+
+    radar = RadarConfig.awr1843(num_chirps=1)
+    ctx = EffectContext(radar)
+    rng = np.random.default_rng(4)
+    p, a = np.array([3.0, 0.5, 0.2]), 0.7 + 0.2j
+    z = rng.normal(size=(radar.num_tx, radar.num_rx, radar.num_samples)) + 1j * rng.normal(
+        size=(radar.num_tx, radar.num_rx, radar.num_samples))
+    z[0, 1] = 0
+    img = image_point(p, np.zeros(3), np.array([0.0, 0.3, 0.95]) / np.hypot(0.3, 0.95),
+                      np.linspace(-2.0, -0.4, 7))
+    gain, g1 = ghost_scores(ctx, z, p, a, img)
+    s1, s2 = ghost_templates(ctx, p, img)
+    for b in range(len(img)):
+        A = np.stack([a * s1[b].ravel(), a * s2[b].ravel()], axis=1)
+        coef = np.linalg.lstsq(A, z.ravel(), rcond=None)[0]
+        removed = np.sum(np.abs(z) ** 2) - np.sum(np.abs(z.ravel() - A @ coef) ** 2)
+        assert gain[b] == pytest.approx(removed, rel=1e-9)
+        assert g1[b] == pytest.approx(coef[0], rel=1e-9)
+
+
 @pytest.mark.parametrize("plane", [((0, 0, -FLOOR_H - 0.07), (0, 0, 1)), None])
 def test_11_ghost_gamma_and_plane_recovered(plane):
     radar = RadarConfig.awr1843(num_chirps=1)

@@ -37,8 +37,9 @@ import numpy as np
 from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
-from .scatterer import (C0, DrGeometry, carrier_phase, dr_ref_phase, has_elevation_aperture,
-                        ref_phase_np, single_blas, static_view, strongest_point)
+from .scatterer import (C0, DrGeometry, _freq_terms, carrier_phase, dr_ref_phase, excess_np,
+                        has_elevation_aperture, ref_phase_np, single_blas, static_view,
+                        strongest_point)
 
 dr, mi = ops.dr, ops.mi
 
@@ -94,13 +95,47 @@ def ghost_signal_np(ctx, p, a_ref, q, n, offset, gamma_ref) -> np.ndarray:
     return a_ref * (gamma_ref * single + gamma_ref ** 2 * double)
 
 
-def _fit_score(z, s1, s2):
-    """Energy removed from ``z`` by LS on ``(s1, s2)`` (batched ``[B, ...]``), and the ``s1``
-    gain."""
-    B = s1.shape[0]
-    Am = np.stack([s1.reshape(B, -1), s2.reshape(B, -1)], axis=-1)             # [B, M, 2]
-    G = np.einsum("bmi,bmj->bij", np.conj(Am), Am)
-    rhs = np.einsum("bmi,m->bi", np.conj(Am), z.ravel())
+def ghost_scores(ctx, z, p, a, img):
+    """Energy removed from ``z [T, R, N]`` by a least-squares fit of the ghost of ``p``
+    (amplitude ``a``) at each image point ``img [B, 3]``, and the fitted
+    single-bounce coefficient: ``(gain [B], gamma_ref [B])``.
+
+    The referred phase is separable, ``exp(j phase) = U_t[n] V_r[n] w[n]``
+    (:func:`ref_phase_np`: a Tx term, an Rx term and an origin term), so the
+    projections of the two templates (single bounce ``a1 + a2``, double bounce
+    ``s2``) onto ``z`` and their Gram matrix reduce to sums over Tx or Rx
+    only, except ``<s2, z>`` (one ``T R N`` contraction per image point):
+    the same numbers as building the ``[B, T, R, N]`` templates, without them.
+    """
+    radar = ctx.radar
+    fk, sk = _freq_terms(ctx)
+    T, R, N = z.shape
+
+    def tx_term(pts):                                      # [..., T, N]
+        return np.exp(1j * fk * excess_np(pts, radar.tx_positions)[..., None])
+
+    def rx_term(pts):                                      # [..., R, N]
+        return np.exp(1j * fk * excess_np(pts, radar.rx_positions)[..., None])
+
+    Up, Vp, Ui, Vi = tx_term(p), rx_term(p), tx_term(img), rx_term(img)
+    n_p, n_i = np.linalg.norm(p), np.linalg.norm(img, axis=1)
+    w1 = np.exp(1j * sk * (n_p + n_i)[:, None])           # single bounce [B, N]
+    w2 = np.exp(1j * sk * (2 * n_i)[:, None])              # double bounce [B, N]
+    Zp = np.einsum("rn,trn->tn", Vp.conj(), z)             # z seen by the target's Rx term
+    Zq = np.einsum("tn,trn->rn", Up.conj(), z)             # ... by its Tx term
+    Zi = np.einsum("brn,trn->btn", Vi.conj(), z)           # ... by each image's Rx term
+    rhs = np.stack([np.einsum("btn,bn,tn->b", Ui.conj(), w1.conj(), Zp)
+                    + np.einsum("brn,bn,rn->b", Vi.conj(), w1.conj(), Zq),
+                    np.einsum("btn,bn,btn->b", Ui.conj(), w2.conj(), Zi)], axis=-1)
+    cu = np.einsum("btn,tn->bn", Ui.conj(), Up)            # sum_t conj(U_i) U_p
+    cv = np.einsum("rn,brn->bn", Vp.conj(), Vi)            # sum_r conj(V_p) V_i
+    trn = float(T * R * N)
+    G = np.empty((len(img), 2, 2), complex)
+    G[:, 0, 0] = 2 * trn + 2 * np.sum(cu * cv, axis=1).real
+    G[:, 0, 1] = np.sum(w1.conj() * w2 * (T * cv + R * cu.conj()), axis=1)
+    G[:, 1, 0] = G[:, 0, 1].conj()
+    G[:, 1, 1] = trn
+    G, rhs = G * abs(a) ** 2, rhs * np.conj(a)
     coef = np.linalg.solve(G + 1e-9 * np.eye(2), rhs[..., None])[..., 0]
     gain = np.einsum("bi,bi->b", np.conj(coef), rhs).real
     return gain, coef[:, 0]
@@ -197,14 +232,11 @@ class MultipathGhost(Effect):
         extra = np.linalg.norm(img, axis=1) - np.linalg.norm(p)
         keep = extra > 1.5 * ctx.radar.range_resolution                    # resolvable ghost
         offs, img = offs[keep], img[keep]
-        best = None
-        for s in range(0, len(offs), 32):
-            s1, s2 = ghost_templates(ctx, p, img[s:s + 32])
-            gain, g1 = _fit_score(z, a * s1, a * s2)
-            j = int(np.argmax(gain))
-            if best is None or gain[j] > best[0]:
-                best = (gain[j], offs[s + j], g1[j])
-        return best
+        if not len(offs):
+            return None
+        gain, g1 = ghost_scores(ctx, z, p, a, img)
+        j = int(np.argmax(gain))
+        return gain[j], offs[j], g1[j]
 
     def _search(self, ctx, z, p, a):
         """Best ``(q, n, offset, gamma_ref)`` by LS energy reduction: a grid of two thirds
