@@ -156,16 +156,16 @@ def test_07_variance_effects_are_ranked_only_when_no_mean_effect_helps():
     assert [c.name for c in d.adoptions[0].candidates] == ["channel_gain"]
 
 
-def test_08_slot_share_counts_the_frame_chirp_slots_that_gain():
+def test_08_slot_share_counts_the_transmit_slots_that_gain():
     from sionna_mmir.residual.diagnosis import slot_share
 
-    shape = (1, 2, 2, 4)                                   # F, T, R, C
-    test = np.zeros(shape, bool)
-    test[0, 0, :, :] = True                                # one fold: Tx 0, both Rx, 4 chirps
-    # per held-out cell, in the mask's C order: (r0 c0..c3), (r1 c0..c3)
-    gains = np.array([5.0, -1.0, 2.0, -3.0, 5.0, -1.0, -2.5, -3.0])
-    # slots: c0 +10, c1 -2, c2 -0.5, c3 -6 -> one of four gains
-    assert slot_share([gains], [test]) == pytest.approx(0.25)
+    shape = (1, 2, 2, 2)                                   # F, T, R, C
+    test = np.ones(shape, bool)
+    # per held-out cell, in the mask's C order: t0 (r0 c0, r0 c1, r1 c0, r1 c1), t1 (...)
+    gains = np.array([5.0, -1.0, 2.0, -3.0, -5.0, 1.0, -2.0, 3.0])
+    # transmit slots: (t0, c0) +7, (t0, c1) -4, (t1, c0) -7, (t1, c1) +4 -> two of four;
+    # per chirp loop alone (Tx pooled) both would sum to 0
+    assert slot_share([gains], [test]) == pytest.approx(0.5)
     assert slot_share([np.abs(gains)], [test]) == pytest.approx(1.0)
     assert slot_share([gains[:2]], [np.zeros((1, 1, 1, 2), bool) | True]) == 1.0   # < 4 slots
 
@@ -185,6 +185,14 @@ def test_09_a_noise_floor_is_not_adopted_for_a_burst_in_a_few_chirps():
     assert d.adopted == []
     (c,) = d.last_candidates
     assert c.score > 0 and c.slot_share < 0.5              # it helps, but in two chirps only
+    # a burst in every chirp loop but in one Tx's transmission of it (TDM: an
+    # interferer's sweep crosses ours in some transmit slots) is localised too
+    hit = np.arange(radar.num_tx)[:, None] == np.arange(radar.num_chirps)[None, :] % radar.num_tx
+    meas = clean + _noise(clean.shape, 0.01, 8) + burst * hit[None, :, None, :, None]
+    d = diagnose(EffectModel(ctx, meas, clean), [NoiseFloor()], max_rounds=1)
+    assert d.adopted == []
+    (c,) = d.last_candidates
+    assert c.score > 0 and c.slot_share < 0.5
     # the same power spread over every chirp is a noise floor
     meas = clean + _noise(clean.shape, 0.01, 8) + burst * np.sqrt(2 / 16)
     d = diagnose(EffectModel(ctx, meas, clean), [NoiseFloor()], max_rounds=1)

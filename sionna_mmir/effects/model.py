@@ -421,8 +421,9 @@ class EffectModel:
 
         With ``per_cell`` it returns ``(mean, per-cell mean NLL over the
         selected cells [n_cells])`` at the profiled floor; with ``by_slot``
-        the floor is profiled per (frame, chirp) slot instead (a disturbance
-        confined to a few chirps then raises only their floor).
+        the floor is profiled per transmit slot (frame, Tx, chirp: in TDM-MIMO
+        every Tx fires in its own slot) instead, so a disturbance confined to
+        a few slots raises only their floor.
         """
         x, v = self.mean_variance_numpy()
         cells = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
@@ -438,8 +439,8 @@ class EffectModel:
         if not by_slot:
             cell_nll = _profiled_cells(r2, s, extra)
         else:
-            f, _, _, c = np.nonzero(cells)
-            slot = f * self.ctx.shape[3] + c
+            f, t, _, c = np.nonzero(cells)
+            slot = (f * self.ctx.shape[1] + t) * self.ctx.shape[3] + c
             cell_nll = np.empty(len(slot))
             for k in np.unique(slot):
                 sel = slot == k

@@ -32,7 +32,8 @@ the noise where the residual is large; a mean effect explains it.  Each
 round therefore ranks the mean-kind candidates first and adopts the best
 one when its score is positive; the variance-kind candidates are scored
 (and may be adopted) only in a round where no mean candidate helps, and
-only when they help in most (frame, chirp) slots (:data:`MIN_SLOT_SHARE`):
+only when they help in most transmit slots (frame, Tx, chirp; in TDM-MIMO
+every Tx fires in its own slot) (:data:`MIN_SLOT_SHARE`):
 a stationary noise model that gains in a few chirps only is absorbing a
 localised disturbance (interference, a burst), which is reported as
 unexplained instead.  The adopted effect is then refitted jointly with all adopted effects on all
@@ -62,7 +63,7 @@ class CandidateScore:
     gain_per_sample: float      # per held-out complex sample [nats]
     score: float                # gain - penalty * n_params
     fold_gains: list
-    #: share of the (frame, chirp) slots whose held-out NLL the candidate lowers
+    #: share of the transmit slots (frame, Tx, chirp) whose held-out NLL the candidate lowers
     slot_share: float = 1.0
 
     def to_dict(self) -> dict:
@@ -171,25 +172,28 @@ def _fold_bases(model: EffectModel, folds, maxiter) -> list:
 
 
 def slot_share(gains: list, tests: list) -> float:
-    """Share of the (frame, chirp) slots with a positive held-out gain.
+    """Share of the transmit slots (frame, Tx, chirp) with a positive held-out gain.
 
     ``gains[i]`` holds the per-cell NLL reductions on the held-out cells of
     fold ``i`` (boolean mask ``tests[i]`` ``[F, T, R, C]``, in its order),
     each model's white floor profiled per slot
     (:meth:`~sionna_mmir.effects.model.EffectModel.nll_profiled` with
     ``by_slot``), so that a floor raised by a few slots does not make every
-    slot look noisier than it is.  A stationary effect (a noise floor, a phase-noise skirt) claims the same
-    statistics in every chirp, so it should help in most slots; a gain from a
-    few slots is a localised disturbance the effect only absorbs.  1.0 when
-    there are fewer than 4 slots.
+    slot look noisier than it is.  In TDM-MIMO every Tx fires in its own
+    time slot, so a slot is a (frame, Tx, chirp) transmission: a burst of
+    interference hits some transmissions of a chirp loop and not others.  A
+    stationary effect (a noise floor, a phase-noise skirt) claims the same
+    statistics in every slot, so it should help in most; a gain from a few
+    slots is a localised disturbance the effect only absorbs.  1.0 when there
+    are fewer than 4 slots.
     """
-    F, _, _, C = tests[0].shape
-    if F * C < 4:
+    F, T, _, C = tests[0].shape
+    if F * T * C < 4:
         return 1.0
-    per_slot = np.zeros((F, C))
+    per_slot = np.zeros((F, T, C))
     for g, test in zip(gains, tests):
-        f, _, _, c = np.nonzero(test)
-        np.add.at(per_slot, (f, c), g)
+        f, t, _, c = np.nonzero(test)
+        np.add.at(per_slot, (f, t, c), g)
     return float(np.mean(per_slot > 0))
 
 
@@ -302,7 +306,7 @@ class _Tiers:
 
 
 #: a variance effect must lower the held-out NLL in at least this share of the
-#: (frame, chirp) slots (:func:`slot_share`): it models stationary noise
+#: transmit slots (:func:`slot_share`): it models stationary noise
 MIN_SLOT_SHARE = 0.5
 
 
