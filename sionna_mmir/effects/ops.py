@@ -10,6 +10,7 @@ unitary DFT is its inverse, applied to ``G = dL/dRe y + j dL/dIm y``.
 from __future__ import annotations
 
 import contextlib
+import math
 
 import numpy as np
 
@@ -139,7 +140,7 @@ def _shaped(flat, shape):
     Dr.Jit 1.5 resizes a one-element *tensor* in place the first time it is
     broadcast, so reusing it fails; a width-1 ``mi.Float`` broadcasts safely.
     """
-    if int(np.prod(shape)) == 1:
+    if math.prod(shape) == 1:
         return flat + 0.0
     return mi.TensorXf(flat, shape)
 

@@ -12,6 +12,7 @@
 """
 from __future__ import annotations
 
+import math
 import numbers
 
 import warnings
@@ -92,7 +93,7 @@ def last_axis(arr):
 
 def scalar(p, j: int = 0):
     """Element ``j`` of a 1-D parameter tensor as a width-1 ``mi.Float`` (AD, safe to broadcast)."""
-    n = int(np.prod(p.shape))
+    n = math.prod(p.shape)
     if n == 1:
         return ops.view(p, (1, 1, 1, 1, 1))
     return ops.column(ops.view(p, (1, n)), j, (1, 1, 1, 1, 1))

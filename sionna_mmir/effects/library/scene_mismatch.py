@@ -31,6 +31,8 @@ not of a wavelength, and the fits converge from zero.
 """
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from .. import ops
@@ -62,15 +64,56 @@ def _carrier(ctx):
             2 * np.pi * r.center_frequency)
 
 
+#: constant tensors per context / basis (``id`` -> value, dropped with the object):
+#: converted once instead of at every loss evaluation of a fit
+_CONSTANTS: dict = {}
+
+
+def _constant(owner, build):
+    """``build()`` for ``owner``, computed once while ``owner`` lives."""
+    key = id(owner)
+    hit = _CONSTANTS.get(key)
+    if hit is None or hit[0]() is not owner:
+        hit = (weakref.ref(owner), build())
+        _CONSTANTS[key] = hit
+        weakref.finalize(owner, _CONSTANTS.pop, key, None)
+    return hit[1]
+
+
+def _delay_maps(basis):
+    """The pose-delay map (:meth:`~..scene_basis.SceneBasis.pose_delay_matrix`)
+    as constants: per component six tensors ``[1, T, R, 1, 1]`` and the six
+    pair means ``[K, 6]`` [s per m | s per rad]."""
+    def build():
+        M = basis.pose_delay_matrix()
+        K, T, R, _ = M.shape
+        maps = [[ops.tensor(M[o, :, :, i].reshape(1, T, R, 1, 1)) for i in range(6)]
+                for o in range(K)]
+        return maps, M.mean(axis=(1, 2))
+    return _constant(basis, build)
+
+
 def _delay_phase(dtau, dtau_mean, ctx):
     """``2 pi (f0 + S t_k) dtau - 2 pi f_c dtau_mean`` as a tensor broadcast to ``[..., N]``.
 
     ``dtau`` ``[1, T|1, R|1, 1, 1]`` and ``dtau_mean`` scalar-like tensors [s].
     """
-    w, wc = _carrier(ctx)
-    N = len(w)
-    w_t = ops.tensor(w.reshape(1, 1, 1, 1, N))
-    return dtau * w_t - dtau_mean * float(wc)
+    def build():
+        w, wc = _carrier(ctx)
+        return ops.tensor(w.reshape(1, 1, 1, 1, len(w))), float(wc)
+    w_t, wc = _constant(ctx, build)
+    return dtau * w_t - dtau_mean * wc
+
+
+def _linear_delay(maps, means, v, sign=1.0):
+    """``(sum_i sign maps[i] v[i], sum_i sign means[i] v[i])``: a component's
+    per-pair delay and its pair mean for the offsets ``v`` (width-1 values)."""
+    dtau, mean = None, 0.0
+    for m, mu, x in zip(maps, means, v):
+        term = m * (sign * x)
+        dtau = term if dtau is None else dtau + term
+        mean = mean + float(sign * mu) * x
+    return dtau, mean
 
 
 class ObjectGain(BasisEffect):
@@ -165,16 +208,11 @@ class ObjectShift(BasisEffect):
         return {"shift": ParamSpec(np.zeros((K, 3)), lower=-lim, upper=lim, unit="m")}
 
     def apply_basis(self, B, p, ctx):
-        M = -ctx.basis.pose_delay_matrix()[..., :3]                # [K, T, R, 3]
-        T, R = M.shape[1:3]
+        maps, means = _delay_maps(ctx.basis)                      # a shift moves the object
         out = []
-        for o, b in enumerate(B):
-            dtau, mean = None, 0.0
-            for i in range(3):
-                v = scalar(p["shift"], 3 * o + i)
-                term = ops.tensor(M[o, :, :, i].reshape(1, T, R, 1, 1)) * v
-                dtau = term if dtau is None else dtau + term
-                mean = mean + float(M[o, :, :, i].mean()) * v
+        for o, b in enumerate(B):                                 # by -(a radar translation)
+            v = [scalar(p["shift"], 3 * o + i) for i in range(3)]
+            dtau, mean = _linear_delay(maps[o][:3], means[o, :3], v, sign=-1.0)
             out.append(ops.cmul(b, ops.cis(_delay_phase(dtau, mean, ctx))))
         return out
 
@@ -210,18 +248,12 @@ class PoseOffset(BasisEffect):
                                       unit="rad")}
 
     def apply_basis(self, B, p, ctx):
-        M = ctx.basis.pose_delay_matrix()                         # [K, T, R, 6]
-        T, R = M.shape[1:3]
+        maps, means = _delay_maps(ctx.basis)                      # [K][6], [K, 6]
+        v = ([scalar(p["translation"], j) for j in range(3)]
+             + [scalar(p["rotation"], j) for j in range(3)])
         out = []
         for o, b in enumerate(B):
-            dtau = None
-            for i in range(6):
-                coef = ops.tensor(M[o, :, :, i].reshape(1, T, R, 1, 1))
-                key, j = ("translation", i) if i < 3 else ("rotation", i - 3)
-                term = coef * scalar(p[key], j)
-                dtau = term if dtau is None else dtau + term
-            mean = sum(float(M[o, :, :, i].mean()) * scalar(
-                p["translation" if i < 3 else "rotation"], i % 3) for i in range(6))
+            dtau, mean = _linear_delay(maps[o], means[o], v)
             out.append(ops.cmul(b, ops.cis(_delay_phase(dtau, mean, ctx))))
         return out
 
