@@ -197,3 +197,23 @@ def test_09_a_noise_floor_is_not_adopted_for_a_burst_in_a_few_chirps():
     meas = clean + _noise(clean.shape, 0.01, 8) + burst * np.sqrt(2 / 16)
     d = diagnose(EffectModel(ctx, meas, clean), [NoiseFloor()], max_rounds=1)
     assert d.adopted == ["noise_floor"]
+
+
+def test_10_an_if_filter_is_scored_on_every_chirp_a_gain_on_the_chirp_average():
+    """Chirp-static candidates are scored on the chirp average, except one that
+    shapes the receiver noise (the IF filter): averaging buries its noise
+    notch under what the scene leaves unexplained, so it is scored on every
+    chirp (the held-out sample count says which data a score saw)."""
+    from sionna_mmir.effects.library.if_filter import IFFilter
+    from sionna_mmir.residual.diagnosis import _Tiers
+
+    radar = RadarConfig.awr1843(num_chirps=8, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    meas = clean * 1.01 + _noise(clean.shape, 0.02, 14)
+    model = EffectModel(ctx, meas, clean)
+    tiers = _Tiers(model, 3, 0, "auto")
+    scores = {c.name: c for c in tiers.rank([IFFilter(), ChannelGain()], 1.0, 50, None)}
+    held_out = {k: c.gain / c.gain_per_sample for k, c in scores.items()}
+    assert held_out["if_filter"] == pytest.approx(clean.size)
+    assert held_out["channel_gain"] == pytest.approx(clean.size / radar.num_chirps)

@@ -281,8 +281,9 @@ def _position(model: EffectModel, comp) -> int:
 
 class _Tiers:
     """The models candidates are scored on: the chirp-averaged model for the
-    chirp-static candidates (as many nats from a fraction of the data), the
-    full model for the rest; with their cross-validation folds.  Adopted
+    chirp-static candidates (as many nats from a fraction of the data;
+    :func:`_averaged_scoring`), the full model for the rest; with their
+    cross-validation folds.  Adopted
     chirp-varying components enter the averaged model at their current values
     (:class:`~sionna_mmir.effects.frozen.FrozenPart`: a mover's averaged path,
     a noise effect's averaged variance); the full model is used for every
@@ -297,12 +298,20 @@ class _Tiers:
                           else _folds(self.avg.ctx.shape[:4], folds, seed, groups)[0])
 
     def rank(self, candidates, penalty, maxiter, progress):
-        fast = [c for c in candidates if c.chirp_static]
-        slow = [c for c in candidates if not c.chirp_static]
+        fast = [c for c in candidates if _averaged_scoring(c)]
+        slow = [c for c in candidates if not _averaged_scoring(c)]
         out = rank_candidates(self.avg, fast, self.avg_folds, penalty, maxiter, progress)
         if slow:
             out += rank_candidates(self.model, slow, self.folds, penalty, maxiter, progress)
         return sorted(out, key=lambda c: c.score, reverse=True)
+
+
+def _averaged_scoring(eff) -> bool:
+    """Whether ``eff`` is scored and fitted on chirp-averaged data: a
+    chirp-static effect, unless it also shapes the receiver noise (an IF
+    filter): averaging over chirps buries the noise shape, its most robust
+    signature, under what the scene leaves unexplained."""
+    return eff.chirp_static and not getattr(eff, "shapes_noise", False)
 
 
 #: a variance effect must lower the held-out NLL in at least this share of the
@@ -340,7 +349,7 @@ def _adopt(model, eff, maxiter):
     full model takes the values and refits its noise floor; chirp-varying
     components held fixed there are refitted jointly with the rest on the
     full data).  Returns the new component."""
-    static = eff.chirp_static and model.can_average()
+    static = _averaged_scoring(eff) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     work.fit(maxiter=2 * maxiter)
