@@ -344,8 +344,8 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
 
 
 def _adopt(model, eff, maxiter):
-    """Add ``eff`` and refit everything jointly (backfitting earlier sensor
-    effects); on chirp-averaged data when every component allows it (then the
+    """Add ``eff`` and refit everything jointly (backfitting earlier effects
+    after a mean effect); on chirp-averaged data when every component allows it (then the
     full model takes the values and refits its noise floor; chirp-varying
     components held fixed there are refitted jointly with the rest on the
     full data).  Returns the new component."""
@@ -353,7 +353,8 @@ def _adopt(model, eff, maxiter):
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     work.fit(maxiter=2 * maxiter)
-    comp = _backfit(work, comp, maxiter)
+    if eff.kind != "variance":     # a noise model only reweights the mean fit: no re-initialising
+        comp = _backfit(work, comp, maxiter)
     if work is not model:                   # the values carry over
         k = _position(work, comp)
         source = {id(c.effect): c for c in model.components}
