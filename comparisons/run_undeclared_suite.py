@@ -190,10 +190,11 @@ def main(argv=None) -> int:
     rows = _previous_rows(args.out)
     for kind in kinds:
         case = make_case(kind, seed=args.seed, radar=radar, num_chirps=args.chirps)
+        commit = _commit()                  # the code the run starts with
         doc, wall = _run_case(case, os.path.join(args.work, case.name), args.chirps)
         row = score_case(case, doc)
         row["seconds"], row["radar"], row["chirps"] = wall, radar, case.capture.radar.num_chirps
-        row["commit"] = _commit()
+        row["commit"] = commit
         rows = [r for r in rows if (r["case"], r["radar"]) != (case.name, radar)] + [row]
         print(f"{case.name}: adopted {row['adopted']} -> {'ok' if row['ok'] else 'NOT ok'} "
               f"({wall:.0f} s)", flush=True)
