@@ -77,6 +77,26 @@ def _bin_power(residual: np.ndarray) -> np.ndarray:
     return np.maximum(P[keep].mean(axis=0) if keep.any() else P.mean(axis=0), 1e-300)
 
 
+def _seen_chirp_mean(x: np.ndarray) -> np.ndarray:
+    """Mean over chirp loops of ``x [F, T, R, C, N]`` over the chirps that are not
+    all zero (held out), ``[F, T, R, 1, N]``."""
+    seen = np.any(x != 0, axis=-1, keepdims=True)
+    return x.sum(axis=3, keepdims=True) / np.maximum(seen.sum(axis=3, keepdims=True), 1)
+
+
+def chirp_deviation(x: np.ndarray) -> np.ndarray | None:
+    """Deviation of each chirp of ``x [F, T, R, C, N]`` from the chirp mean, scaled
+    by ``sqrt(C / (C - 1))`` so white noise keeps its power (held-out, all-zero
+    chirps stay zero); ``None`` with one chirp loop.  A static scene and a static
+    sensor repeat from chirp to chirp: what is left is receiver noise."""
+    C = x.shape[3]
+    if C < 2:
+        return None
+    seen = np.any(x != 0, axis=-1, keepdims=True)
+    n = np.maximum(seen.sum(axis=3, keepdims=True), 2)
+    return np.where(seen, (x - _seen_chirp_mean(x)) * np.sqrt(n / (n - 1)), 0.0)
+
+
 def butterworth_poles(order: int) -> np.ndarray:
     """Left-half-plane poles of the normalised ``order``-th Butterworth low-pass."""
     i = np.arange(1, order + 1)
@@ -166,8 +186,10 @@ class IFFilter(Effect):
         (:meth:`_signal_init`, ``rho`` by a 1-D search) and the noise start
         (:meth:`_noise_init`)."""
         hp, lp = self._signal_init(ctx, model, data, hb, lb)
-        starts = [(hp, lp, self._noise_init(ctx, data - model, [hp], [lp])[2]),
-                  self._noise_init(ctx, data - model, np.linspace(hb[0], hb[1], 32),
+        noise = chirp_deviation(data - model)
+        noise = data - model if noise is None else noise
+        starts = [(hp, lp, self._noise_init(ctx, noise, [hp], [lp])[2]),
+                  self._noise_init(ctx, noise, np.linspace(hb[0], hb[1], 32),
                                    np.linspace(lb[0], lb[1], 16))]
         nll = [self._start_nll(ctx, model, data, *st) for st in starts]
         return starts[int(np.argmin(nll))]
@@ -192,11 +214,25 @@ class IFFilter(Effect):
     def _start_nll(self, ctx, model, data, hp, lp, rho) -> float:
         """Mean NLL per sample of ``data`` under ``g filter(model)`` (``g`` least
         squares) and the white floor shaped by ``s`` (profiled), cells that are
-        all zero (held out) left out."""
+        all zero (held out) left out.
+
+        With ``C >= 2`` chirp loops it is split as the Gaussian likelihood
+        splits: the chirp mean of the residual (one sample in ``C``, what the
+        scene leaves unexplained plus the averaged noise) and its deviation
+        from that mean (``C - 1`` in ``C``, receiver noise only), each with its
+        own profiled floor, so the noise shape is judged where noise is all
+        there is."""
         xf = self._filtered_numpy(ctx, model, hp, lp)
         e = np.vdot(xf, xf).real
         g = np.vdot(xf, data) / e if e > 0 else 0.0
-        return self._shape_nll(ctx, data - g * xf, hp, lp, rho)
+        r = data - g * xf
+        dev = chirp_deviation(r)
+        if dev is None:
+            return self._shape_nll(ctx, r, hp, lp, rho)
+        C = r.shape[3]
+        mean = _seen_chirp_mean(r)
+        return (self._shape_nll(ctx, mean, hp, lp, rho)
+                + (C - 1) * self._shape_nll(ctx, dev, hp, lp, rho)) / C
 
     def _shape_nll(self, ctx, residual, hp, lp, rho) -> float:
         P = _bin_power(residual)
