@@ -36,10 +36,6 @@ from ..residual.localise import localise
 from ..residual.report import METRICS, write_figures
 
 
-def _noise(model) -> float:
-    return float(np.exp(model.nuisance.values["log_noise"][0])) * model.scale ** 2
-
-
 def _verdict(adoption, side: str) -> str:
     """One line on why the adopted effect won its round."""
     ranks = adoption.candidates
@@ -68,7 +64,7 @@ def loop_document(loop) -> dict:
         side = "scene" if a.name in _SCENE else "sensor"
         adoptions.append({"name": a.name, "side": side, "verdict": _verdict(a, side),
                           "before": a.before, "after": a.after,
-                          "unexplained": localise(model.ctx, a.residual_after, _noise(model)),
+                          "unexplained": localise(model.ctx, a.residual_after),
                           "params": a.params,
                           "candidates": [c.to_dict() for c in a.candidates]})
     mismatch = {"base_refinement": loop.scene_mismatch or {},
@@ -79,7 +75,7 @@ def loop_document(loop) -> dict:
             "info": loop.info, "first": d.first, "final": d.final,
             "scene_mismatch": mismatch, "adoptions": adoptions,
             "sensor_effects": [a["name"] for a in adoptions if a["side"] == "sensor"],
-            "unexplained": localise(model.ctx, y - model.mean_adc(), _noise(model)),
+            "unexplained": localise(model.ctx, y - model.mean_adc()),
             "unexplained_domains": d.unexplained,
             "last_candidates": [c.to_dict() for c in d.last_candidates],
             "stop_reason": d.settings.get("stop_reason"), "settings": d.settings,

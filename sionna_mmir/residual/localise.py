@@ -4,11 +4,36 @@ After the last adoption the residual should be white receiver noise.  What
 is left above it -- an effect nobody declared and the library lacks -- is
 reported by where it concentrates: range bins (with their beat frequency),
 virtual channels, chirp loops (slow time) and fast-time samples, each as the
-excess of the residual's power over the white floor the model fitted.
+excess of the residual's power over the receiver noise.
+
+The noise reference is not the white floor the model fitted: that floor is
+the mean residual power, so it absorbs the very rest it should expose
+(excess 0 dB by construction).  It is the median, over range bins and
+transmit slots (frame, Tx, chirp), of the residual power averaged over the
+Rx, corrected for the median's bias on Gaussian noise
+(:func:`robust_noise_power`): a rest confined to some range bins (a
+scatterer), or to some transmissions (an interferer's bursts), leaves the
+median to the noise as long as it covers less than half of that grid.
 """
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
+
+
+def robust_noise_power(residual) -> float:
+    """Receiver noise power per complex sample of ``residual [F, T, R, C, N]``.
+
+    ``P[f, t, c, k]``, the unitary-DFT power averaged over the ``R`` receivers,
+    is ``Gamma(R, sigma^2 / R)`` distributed for white Gaussian noise; its median
+    over all (transmit slot, range bin) cells divided by that distribution's
+    median (``gamma.median(R) / R``) estimates ``sigma^2``.
+    """
+    r = np.asarray(residual)
+    R = np.fft.fft(r, axis=-1, norm="ortho")
+    n_rx = r.shape[2]
+    P = np.mean(np.abs(R) ** 2, axis=2)
+    return float(np.median(P) / (stats.gamma.median(n_rx) / n_rx))
 
 
 def _top(values, labels, n=5):
@@ -17,7 +42,7 @@ def _top(values, labels, n=5):
             for i in order]
 
 
-def localise(ctx, residual, noise_power: float, n_top: int = 5) -> dict:
+def localise(ctx, residual, noise_power: float | None = None, n_top: int = 5) -> dict:
     """Excess of the residual over the noise floor, by domain.
 
     Parameters
@@ -26,21 +51,22 @@ def localise(ctx, residual, noise_power: float, n_top: int = 5) -> dict:
         Axes of the capture.
     residual : numpy.ndarray
         Capture minus model ``[F, T, R, C, N]`` (capture units).
-    noise_power : float
-        Fitted white noise power per complex sample (capture units).
+    noise_power : float, optional
+        Noise power per complex sample (capture units); default
+        :func:`robust_noise_power` of the residual.
     n_top : int
         Entries listed per domain.
 
     Returns
     -------
     dict
-        ``excess_db`` (residual power over the floor, whole capture), a flag
+        ``excess_db`` (residual power over the noise, whole capture), a flag
         ``significant`` (more than 0.5 dB above the floor), and the top
         range bins, channels, chirps and samples with their excess [dB].
     """
     r = np.asarray(residual)
     R = np.fft.fft(r, axis=-1, norm="ortho")
-    floor = max(float(noise_power), 1e-300)
+    floor = max(float(robust_noise_power(r) if noise_power is None else noise_power), 1e-300)
     total = float(np.mean(np.abs(r) ** 2)) / floor
     per_bin = np.mean(np.abs(R) ** 2, axis=(0, 1, 2, 3)) / floor
     per_ch = np.mean(np.abs(r) ** 2, axis=(0, 3, 4)) / floor
