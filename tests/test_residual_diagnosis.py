@@ -240,3 +240,11 @@ def test_11_the_unexplained_rest_is_measured_against_a_robust_noise_level():
     assert loud["significant"] and loud["excess_db"] > 3.0
     assert loud["spread_db"]["chirp"] > 3.0
     assert {c["chirp"] for c in loud["chirps"]} <= set(range(0, 16, 3))
+    # bursts in one Tx's transmission of every loop: even per chirp loop,
+    # uneven per transmit slot
+    one_tx = np.zeros(shape[:4] + (1,), bool)
+    one_tx[0, 1] = True
+    slotted = localise(ctx, noise + _noise(shape, 1.5, 23) * one_tx)
+    assert slotted["significant"] and slotted["spread_db"]["chirp"] < 1.0
+    assert slotted["spread_db"]["slot"] > 3.0
+    assert {s["tx"] for s in slotted["slots"]} == {1}

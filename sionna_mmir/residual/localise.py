@@ -3,7 +3,8 @@
 After the last adoption the residual should be white receiver noise.  What
 is left above it -- an effect nobody declared and the library lacks -- is
 reported by where it concentrates: range bins (with their beat frequency),
-virtual channels, chirp loops (slow time) and fast-time samples, each as the
+virtual channels, chirp loops (slow time), fast-time samples and transmit
+slots (frame, Tx, chirp: a TDM-MIMO transmission), each as the
 excess of the residual's power over the receiver noise.
 
 The noise reference is not the white floor the model fitted: that floor is
@@ -62,7 +63,8 @@ def localise(ctx, residual, noise_power: float | None = None, n_top: int = 5) ->
     dict
         ``excess_db`` (residual power over the noise, whole capture), a flag
         ``significant`` (more than 0.5 dB above the floor), and the top
-        range bins, channels, chirps and samples with their excess [dB].
+        range bins, channels, chirps, samples and transmit slots (frame, Tx,
+        chirp) with their excess [dB].
     """
     r = np.asarray(residual)
     R = np.fft.fft(r, axis=-1, norm="ortho")
@@ -72,6 +74,8 @@ def localise(ctx, residual, noise_power: float | None = None, n_top: int = 5) ->
     per_ch = np.mean(np.abs(r) ** 2, axis=(0, 3, 4)) / floor
     per_chirp = np.mean(np.abs(r) ** 2, axis=(0, 1, 2, 4)) / floor
     per_sample = np.mean(np.abs(r) ** 2, axis=(0, 1, 2, 3)) / floor
+    per_slot = np.mean(np.abs(r) ** 2, axis=(2, 4)) / floor             # [F, T, C]
+    F, T_, C_ = per_slot.shape
     ranges, freqs = ctx.band_ranges, ctx.band_frequencies()
     T, R_ = per_ch.shape
     return {
@@ -82,9 +86,13 @@ def localise(ctx, residual, noise_power: float | None = None, n_top: int = 5) ->
         "channels": _top(per_ch.ravel(), lambda i: {"tx": i // R_, "rx": i % R_}, n_top),
         "chirps": _top(per_chirp, lambda i: {"chirp": i}, n_top),
         "samples": _top(per_sample, lambda i: {"sample": i}, n_top),
+        "slots": _top(per_slot.ravel(), lambda i: {"frame": i // (T_ * C_),
+                                                    "tx": (i // C_) % T_, "chirp": i % C_}, n_top),
         "spread_db": {
             "range": round(float(10 * np.log10(per_bin.max() / max(np.median(per_bin), 1e-30))), 2),
             "channel": round(float(10 * np.log10(per_ch.max() / max(np.median(per_ch), 1e-30))), 2),
             "chirp": round(float(10 * np.log10(per_chirp.max() / max(np.median(per_chirp),
-                                                                       1e-30))), 2)},
+                                                                       1e-30))), 2),
+            "slot": round(float(10 * np.log10(per_slot.max() / max(np.median(per_slot),
+                                                                     1e-30))), 2)},
     }
