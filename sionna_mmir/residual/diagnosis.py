@@ -283,12 +283,12 @@ class _Tiers:
     """The models candidates are scored on: the chirp-averaged model for the
     chirp-static candidates (as many nats from a fraction of the data;
     :func:`_averaged_scoring`), the full model for the rest; with their
-    cross-validation folds.  Adopted
-    chirp-varying components enter the averaged model at their current values
-    (:class:`~sionna_mmir.effects.frozen.FrozenPart`: a mover's averaged path,
-    a noise effect's averaged variance); the full model is used for every
-    candidate only when one of them has no averaged counterpart (ego-motion,
-    clipping)."""
+    cross-validation folds.  Adopted chirp-varying components enter the
+    averaged model at their current values
+    (:class:`~sionna_mmir.effects.frozen.FrozenPart`: a mover's averaged
+    path, a noise effect's averaged variance); the full model is used for
+    every candidate only when one of them has no averaged counterpart
+    (ego-motion, clipping)."""
 
     def __init__(self, model, folds, seed, groups):
         self.model = model
@@ -345,15 +345,15 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
 
 def _adopt(model, eff, maxiter):
     """Add ``eff`` and refit everything jointly (backfitting earlier effects
-    after a mean effect); on chirp-averaged data when every component allows it (then the
-    full model takes the values and refits its noise floor; chirp-varying
-    components held fixed there are refitted jointly with the rest on the
-    full data).  Returns the new component."""
+    after a mean effect); on chirp-averaged data when every component allows
+    it (then the full model takes the values and refits its noise floor;
+    chirp-varying components held fixed there are refitted jointly with the
+    rest on the full data).  Returns the new component."""
     static = _averaged_scoring(eff) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     work.fit(maxiter=2 * maxiter)
-    if eff.kind != "variance":     # a noise model only reweights the mean fit: no re-initialising
+    if eff.kind != "variance":      # a noise model only reweights the mean fit
         comp = _backfit(work, comp, maxiter)
     if work is not model:                   # the values carry over
         k = _position(work, comp)
