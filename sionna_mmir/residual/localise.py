@@ -30,9 +30,13 @@ def robust_noise_power(residual) -> float:
     over all (transmit slot, range bin) cells divided by that distribution's
     median (``gamma.median(R) / R``) estimates ``sigma^2``.
     """
-    r = np.asarray(residual)
-    R = np.fft.fft(r, axis=-1, norm="ortho")
-    n_rx = r.shape[2]
+    R = np.fft.fft(np.asarray(residual), axis=-1, norm="ortho")
+    return _median_noise(R)
+
+
+def _median_noise(R) -> float:
+    """:func:`robust_noise_power` from the residual's range spectrum ``R``."""
+    n_rx = R.shape[2]
     P = np.mean(np.abs(R) ** 2, axis=2)
     return float(np.median(P) / (stats.gamma.median(n_rx) / n_rx))
 
@@ -68,7 +72,7 @@ def localise(ctx, residual, noise_power: float | None = None, n_top: int = 5) ->
     """
     r = np.asarray(residual)
     R = np.fft.fft(r, axis=-1, norm="ortho")
-    floor = max(float(robust_noise_power(r) if noise_power is None else noise_power), 1e-300)
+    floor = max(float(_median_noise(R) if noise_power is None else noise_power), 1e-300)
     total = float(np.mean(np.abs(r) ** 2)) / floor
     per_bin = np.mean(np.abs(R) ** 2, axis=(0, 1, 2, 3)) / floor
     per_ch = np.mean(np.abs(r) ** 2, axis=(0, 3, 4)) / floor

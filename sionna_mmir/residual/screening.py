@@ -25,6 +25,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import median_filter, uniform_filter1d
 
+from ..effects.library._sensor_common import chirp_deviation
+
 #: candidates whose signature is a chirp-to-chirp change
 SLOW_TIME = ("ego_motion", "moving_scatterer", "phase_noise")
 #: smallest peak excess of the chirp deviation's range profile that counts
@@ -37,11 +39,14 @@ CLIP_FRACTION = 1e-3
 
 def deviation_profile(y: np.ndarray) -> np.ndarray | None:
     """Power per range bin ``[N]`` of the chirp-to-chirp (else frame-to-frame)
-    deviation of ``y [F, T, R, C, N]``; ``None`` with one chirp and one frame."""
-    axis = 3 if y.shape[3] > 1 else (0 if y.shape[0] > 1 else None)
-    if axis is None:
+    deviation of ``y [F, T, R, C, N]``
+    (:func:`~sionna_mmir.effects.library._sensor_common.chirp_deviation`);
+    ``None`` with one chirp and one frame."""
+    d = chirp_deviation(y)
+    if d is None and y.shape[0] > 1:                    # frames as the slow axis
+        d = chirp_deviation(np.moveaxis(y, 0, 3))
+    if d is None:
         return None
-    d = y - y.mean(axis=axis, keepdims=True)
     D = np.fft.fft(d, axis=-1, norm="ortho")
     return np.mean(np.abs(D) ** 2, axis=(0, 1, 2, 3))
 

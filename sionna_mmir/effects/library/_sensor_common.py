@@ -8,7 +8,9 @@
   linear prediction before the DFT (AD through a fixed linear map);
 * constant tensors shaped for broadcasting against ``[F, T, R, C, N]``;
 * coherent grid scans and peak refinement for data-driven initial values;
-* a numerically safe softplus on Dr.Jit tensors.
+* a numerically safe softplus on Dr.Jit tensors;
+* the chirp-to-chirp deviation of a capture (:func:`chirp_deviation`): what
+  a static scene and sensor do not repeat is receiver noise.
 """
 from __future__ import annotations
 
@@ -323,3 +325,23 @@ class _LastAxisMap(dr.CustomOp):
 
     def name(self):
         return "LastAxisMap"
+
+
+def seen_chirp_mean(x: np.ndarray) -> np.ndarray:
+    """Mean over chirp loops of ``x [F, T, R, C, N]`` over the chirps that are not
+    all zero (held out), ``[F, T, R, 1, N]``."""
+    seen = np.any(x != 0, axis=-1, keepdims=True)
+    return x.sum(axis=3, keepdims=True) / np.maximum(seen.sum(axis=3, keepdims=True), 1)
+
+
+def chirp_deviation(x: np.ndarray) -> np.ndarray | None:
+    """Deviation of each chirp of ``x [F, T, R, C, N]`` from the chirp mean, scaled
+    by ``sqrt(C / (C - 1))`` so white noise keeps its power (held-out, all-zero
+    chirps stay zero); ``None`` with one chirp loop.  A static scene and a static
+    sensor repeat from chirp to chirp: what is left is receiver noise."""
+    C = x.shape[3]
+    if C < 2:
+        return None
+    seen = np.any(x != 0, axis=-1, keepdims=True)
+    n = np.maximum(seen.sum(axis=3, keepdims=True), 2)
+    return np.where(seen, (x - seen_chirp_mean(x)) * np.sqrt(n / (n - 1)), 0.0)

@@ -63,7 +63,7 @@ import numpy as np
 from .. import ops
 from ..base import Effect, ParamSpec
 from ._sensor_common import (LN10, RowExtension, band_frequencies, check_float, check_int,
-                             last_axis, scalar)
+                             chirp_deviation, last_axis, scalar, seen_chirp_mean)
 
 dr = ops.dr
 KHZ = 1e3
@@ -75,26 +75,6 @@ def _bin_power(residual: np.ndarray) -> np.ndarray:
     P = np.abs(R) ** 2
     keep = P.sum(axis=-1) > 0
     return np.maximum(P[keep].mean(axis=0) if keep.any() else P.mean(axis=0), 1e-300)
-
-
-def _seen_chirp_mean(x: np.ndarray) -> np.ndarray:
-    """Mean over chirp loops of ``x [F, T, R, C, N]`` over the chirps that are not
-    all zero (held out), ``[F, T, R, 1, N]``."""
-    seen = np.any(x != 0, axis=-1, keepdims=True)
-    return x.sum(axis=3, keepdims=True) / np.maximum(seen.sum(axis=3, keepdims=True), 1)
-
-
-def chirp_deviation(x: np.ndarray) -> np.ndarray | None:
-    """Deviation of each chirp of ``x [F, T, R, C, N]`` from the chirp mean, scaled
-    by ``sqrt(C / (C - 1))`` so white noise keeps its power (held-out, all-zero
-    chirps stay zero); ``None`` with one chirp loop.  A static scene and a static
-    sensor repeat from chirp to chirp: what is left is receiver noise."""
-    C = x.shape[3]
-    if C < 2:
-        return None
-    seen = np.any(x != 0, axis=-1, keepdims=True)
-    n = np.maximum(seen.sum(axis=3, keepdims=True), 2)
-    return np.where(seen, (x - _seen_chirp_mean(x)) * np.sqrt(n / (n - 1)), 0.0)
 
 
 def butterworth_poles(order: int) -> np.ndarray:
@@ -230,7 +210,7 @@ class IFFilter(Effect):
         if dev is None:
             return self._shape_nll(ctx, r, hp, lp, rho)
         C = r.shape[3]
-        mean = _seen_chirp_mean(r)
+        mean = seen_chirp_mean(r)
         return (self._shape_nll(ctx, mean, hp, lp, rho)
                 + (C - 1) * self._shape_nll(ctx, dev, hp, lp, rho)) / C
 
