@@ -758,3 +758,40 @@ def test_29_if_filter_leaves_a_white_floor_white():
     s = ops.to_numpy(IFFilter().noise_gain(
         {k: mi.TensorXf(np.asarray(v, np.float32)) for k, v in comp.values.items()}, ctx))
     assert np.min(s) > 0.9
+
+
+def test_30_row_extension_and_crop_match_the_dense_matrix_and_its_adjoint():
+    # reference: the extension as one dense [N + 2m, N] matrix product and the
+    # crop as a selection matrix, forward and adjoint written out in NumPy
+    from sionna_mmir.effects.library._sensor_common import RowExtension
+
+    rng = np.random.default_rng(3)
+    N, m = 48, 8
+    t = np.arange(N)
+    tones = sum(a * np.exp(2j * np.pi * f * t) for a, f in ((1.0, 0.061), (0.4, -0.173)))
+    x = (tones * (rng.normal(size=(2, 3, 1, 1)) + 1j * rng.normal(size=(2, 3, 1, 1))))
+    ext = RowExtension(m, 6).fit(x)
+    E = ext.matrix
+    assert E is not None and E.shape == (N + 2 * m, N)
+    z = ops.tensor(x)
+    for c in z:
+        dr.enable_grad(c)
+    xe = ext.extend(z, E)
+    np.testing.assert_allclose(ops.to_numpy(xe), x @ E.T, atol=2e-5)
+    w = rng.normal(size=xe[0].shape) + 1j * rng.normal(size=xe[0].shape)
+    loss = dr.sum(ops.abs2(ops.cadd(xe, ops.tensor(w))), axis=None)       # |xe + w|^2
+    dr.backward(loss)
+    g = np.asarray(dr.grad(z[0]), np.float64) + 1j * np.asarray(dr.grad(z[1]), np.float64)
+    np.testing.assert_allclose(g, 2 * (x @ E.T + w) @ np.conj(E), rtol=1e-4, atol=1e-3)
+
+    S = np.zeros((N, N + 2 * m))
+    S[np.arange(N), m + np.arange(N)] = 1.0
+    ye = rng.normal(size=(2, 3, 1, 1, N + 2 * m)) + 1j * rng.normal(size=(2, 3, 1, 1, N + 2 * m))
+    y = ops.tensor(ye)
+    for c in y:
+        dr.enable_grad(c)
+    yc = ext.crop(y, E)
+    np.testing.assert_allclose(ops.to_numpy(yc), ye @ S.T, atol=1e-5)
+    dr.backward(dr.sum(ops.abs2(yc), axis=None))
+    gy = np.asarray(dr.grad(y[0]), np.float64) + 1j * np.asarray(dr.grad(y[1]), np.float64)
+    np.testing.assert_allclose(gy, 2 * (ye @ S.T) @ S, atol=1e-4)

@@ -4,7 +4,8 @@ Complex signals are ``(re, im)`` pairs of ``mi.TensorXf`` of one shape
 (``[F, T, R, C, N]`` for ADC).  :func:`dft` / :func:`idft` transform along the
 last axis with the *unitary* DFT (``np.fft`` order, scaled by ``1/sqrt(N)``),
 so residual energy is the same in the time and range domains (Parseval).  They
-are ``dr.CustomOp`` nodes: the forward is NumPy's FFT; the adjoint of the
+are ``dr.CustomOp`` nodes: the forward is SciPy's FFT in single precision (the
+tensors' own); the adjoint of the
 unitary DFT is its inverse, applied to ``G = dL/dRe y + j dL/dIm y``.
 """
 from __future__ import annotations
@@ -13,6 +14,7 @@ import contextlib
 import math
 
 import numpy as np
+import scipy.fft
 
 from ..utils.backend import init_backend
 
@@ -76,9 +78,12 @@ def zeros_like(a):
 
 
 def _numpy_pair(re, im):
+    """Complex64 NumPy array of a float32 pair (the precision the tensors carry)."""
     shape = tuple(re.shape)
-    return (np.asarray(re, np.float64).reshape(shape)
-            + 1j * np.asarray(im, np.float64).reshape(shape))
+    out = np.empty(shape, np.complex64)
+    out.real = np.asarray(re, np.float32).reshape(shape)
+    out.imag = np.asarray(im, np.float32).reshape(shape)
+    return out
 
 
 class _UnitaryDFT(dr.CustomOp):
@@ -92,7 +97,7 @@ class _UnitaryDFT(dr.CustomOp):
 
     @staticmethod
     def _apply(x, inverse):
-        fn = np.fft.ifft if inverse else np.fft.fft
+        fn = scipy.fft.ifft if inverse else scipy.fft.fft        # single precision in and out
         return fn(x, axis=-1, norm="ortho")
 
     def forward(self):

@@ -275,16 +275,20 @@ class RowExtension:
     def crop_numpy(self, y: np.ndarray, E) -> np.ndarray:
         return y if E is None else y[..., self.margin:self.margin + E.shape[1]]
 
-    # Dr.Jit versions (AD)
+    # Dr.Jit versions (AD).  ``E`` is the identity on the window, so only its
+    # predicted rows cost a product: ``2 margin x N`` per row instead of
+    # ``(N + 2 margin) x N``, and the crop is a slice.
     def extend(self, z, E):
-        return z if E is None else dr.custom(_LastAxisMap, z[0], z[1], matrix=E)
+        if E is None:
+            return z
+        m = (E.shape[0] - E.shape[1]) // 2
+        return dr.custom(_RowExtend, z[0], z[1], head=E[:m], tail=E[E.shape[0] - m:])
 
     def crop(self, z, E):
         if E is None:
             return z
-        sel = np.zeros((E.shape[1], E.shape[0]), complex)
-        sel[np.arange(E.shape[1]), self.margin + np.arange(E.shape[1])] = 1.0
-        return dr.custom(_LastAxisMap, z[0], z[1], matrix=sel)
+        return dr.custom(_LastAxisSlice, z[0], z[1], start=(E.shape[0] - E.shape[1]) // 2,
+                         length=E.shape[1])
 
 
 def _pair_numpy(re, im) -> np.ndarray:
@@ -303,28 +307,60 @@ def _rows_times(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     return out.reshape(x.shape[:-1] + (m.shape[1],))
 
 
-class _LastAxisMap(dr.CustomOp):
-    """``y[..., i] = sum_j A[i, j] x[..., j]`` for a fixed complex matrix ``A`` (AD node).
+class _RowExtend(dr.CustomOp):
+    """``[x head^T, x, x tail^T]`` over the last axis (AD node): a row extension
+    whose matrix is the identity on the window (:meth:`RowExtension.extend`).
 
-    The adjoint for a real loss with ``G = dL/dRe + j dL/dIm`` is ``A^H G``.
+    ``head``, ``tail``: complex ``[m, N]``, the predicted samples before and
+    after the window.  Adjoint: ``G_window + G_head conj(head) + G_tail conj(tail)``.
     """
 
-    def eval(self, re, im, matrix=None):
-        self.matrix = matrix
-        return ops.tensor(_rows_times(_pair_numpy(re, im), matrix.T))
+    def eval(self, re, im, head=None, tail=None):
+        self.head, self.tail = head, tail
+        return ops.tensor(self._apply(_pair_numpy(re, im)))
+
+    def _apply(self, x):
+        return np.concatenate([_rows_times(x, self.head.T), x, _rows_times(x, self.tail.T)],
+                              axis=-1)
 
     def forward(self):
-        dx = _pair_numpy(self.grad_in("re"), self.grad_in("im"))
-        self.set_grad_out(ops.tensor(_rows_times(dx, self.matrix.T)))
+        self.set_grad_out(ops.tensor(self._apply(_pair_numpy(self.grad_in("re"),
+                                                             self.grad_in("im")))))
 
     def backward(self):
-        gre, gim = self.grad_out()
-        gx = ops.tensor(_rows_times(_pair_numpy(gre, gim), np.conj(self.matrix)))
+        g = _pair_numpy(*self.grad_out())
+        m, n = self.head.shape
+        gx = (g[..., m:m + n] + _rows_times(g[..., :m], np.conj(self.head))
+              + _rows_times(g[..., m + n:], np.conj(self.tail)))
+        gx = ops.tensor(gx)
         self.set_grad_in("re", gx[0])
         self.set_grad_in("im", gx[1])
 
     def name(self):
-        return "LastAxisMap"
+        return "RowExtend"
+
+
+class _LastAxisSlice(dr.CustomOp):
+    """``x[..., start:start + length]`` (AD node; the adjoint pads with zeros)."""
+
+    def eval(self, re, im, start=0, length=1):
+        self.start, self.length, self.full = int(start), int(length), int(re.shape[-1])
+        return ops.tensor(_pair_numpy(re, im)[..., self.start:self.start + self.length])
+
+    def forward(self):
+        dx = _pair_numpy(self.grad_in("re"), self.grad_in("im"))
+        self.set_grad_out(ops.tensor(dx[..., self.start:self.start + self.length]))
+
+    def backward(self):
+        g = _pair_numpy(*self.grad_out())
+        gx = np.zeros(g.shape[:-1] + (self.full,), complex)
+        gx[..., self.start:self.start + self.length] = g
+        gx = ops.tensor(gx)
+        self.set_grad_in("re", gx[0])
+        self.set_grad_in("im", gx[1])
+
+    def name(self):
+        return "LastAxisSlice"
 
 
 def seen_chirp_mean(x: np.ndarray) -> np.ndarray:
