@@ -28,7 +28,8 @@ channels and chirps but do not rotate the frame's overall phase.
 Parameters (``5 F`` numbers): ``range`` ``[F]`` [m], ``azimuth`` ``[F]``
 [deg], ``velocity`` ``[F]`` [m/s] (positive receding), ``amp`` ``[F, 2]``
 (re, im) [normalised units].  The init tracks the strongest peak of the
-residual's per-frame range profile over frames (Viterbi with a speed limit),
+per-frame range profile of the residual's chirp-to-chirp deviation (of the
+residual itself with one chirp loop) over frames (Viterbi with a speed limit),
 refines it to sub-bin, takes velocities from the chirp-to-chirp phase
 (``C > 1``) or the track's slope, azimuths from a matched-steering grid and
 amplitudes by least squares -- all vectorised over frames.
@@ -40,6 +41,7 @@ import numpy as np
 from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
+from ._sensor_common import chirp_deviation
 from .scatterer import (C0, DrGeometry, beat_ranges, check_range_limits, dr_ref_phase,
                         ref_phase_np, single_blas)
 
@@ -172,9 +174,17 @@ def _azimuths(y, ctx, v, az_limit) -> np.ndarray:
 
 
 def track_init(residual, ctx, min_range, max_range, max_speed, az_limit=80.0):
-    """Per-frame ``(r [F], az [F], v [F], amp [F] complex)`` of the strongest moving point."""
+    """Per-frame ``(r [F], az [F], v [F], amp [F] complex)`` of the strongest moving point.
+
+    With several chirp loops the point is searched in the residual's
+    chirp-to-chirp deviation (:func:`chirp_deviation`): a static scatterer the
+    scene lacks repeats from chirp to chirp and drops out there however
+    strong it is, a mover's Doppler progression stays.  Its range, velocity
+    and azimuth come from the deviation, its amplitude from the residual.
+    """
     radar = ctx.radar
-    spec, ranges = range_profiles(residual, ctx)
+    moving = chirp_deviation(residual)
+    spec, ranges = range_profiles(residual if moving is None else moving, ctx)
     power = np.sum(np.abs(spec) ** 2, axis=(1, 2, 3))                   # [F, M]
     order = np.argsort(ranges)
     sel = order[(ranges[order] >= min_range) & (ranges[order] <= max_range)]
@@ -190,7 +200,7 @@ def track_init(residual, ctx, min_range, max_range, max_speed, az_limit=80.0):
     path = sel[track_bins(score, jump)]
     off = _parabolic(np.log(power + 1e-300), path)
     r = ranges[path] + off * step * np.sign(radar.slope)
-    y = _tone_values(residual, ctx, r)
+    y = _tone_values(residual if moving is None else moving, ctx, r)
     if radar.num_chirps > 1:
         v = _chirp_velocity(y, ctx)
     elif ctx.frame_period > 0 and len(r) > 2:
