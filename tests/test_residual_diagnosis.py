@@ -248,3 +248,32 @@ def test_11_the_unexplained_rest_is_measured_against_a_robust_noise_level():
     assert slotted["significant"] and slotted["spread_db"]["chirp"] < 1.0
     assert slotted["spread_db"]["slot"] > 3.0
     assert {s["tx"] for s in slotted["slots"]} == {1}
+
+
+def test_12_a_weak_walker_is_adopted_beside_a_strong_static_point_the_scene_lacks():
+    """One frame of 16 chirp loops: a static point 40 dB stronger than a walker
+    is missing from the scene.  The missing scatterer takes the static point,
+    the mover the walker at its range and speed, although the walker (-16 dB
+    per sample under the noise) explains less than a tenth of a nat per
+    sample (truth: the planted targets)."""
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    ctx = EffectContext(radar)
+    assert MovingScatterer().gain_floor(ctx) == 0.0
+    assert MovingScatterer().gain_floor(EffectContext(RadarConfig.awr1843(num_chirps=1),
+                                                      num_frames=4, frame_period=0.02)) == 0.1
+    clean = _clean(radar)
+    static = synthesize_adc(radar, np.array([0.8]), np.array([2 * 2.6 / C]))[None]
+    t = radar.chirp_start_times()[None, :, None, :, None]                   # [1, T, 1, C, 1]
+    v, r = 1.0, 3.1
+    walker = synthesize_adc(radar, np.array([0.008]), np.array([2 * r / C]))[None] * np.exp(
+        4j * np.pi * radar.start_frequency * v * t / C)
+    y = clean + static + walker + _noise(clean.shape, 0.03, 4)
+    d = diagnose(EffectModel(ctx, y, clean), [MissingScatterer(), MovingScatterer()],
+                 max_rounds=3)
+    names = [a.name for a in d.adoptions]
+    assert "missing_scatterer" in names and "moving_scatterer" in names, names
+    mover = next(a for a in d.adoptions if a.name == "moving_scatterer").params
+    assert mover["range_m"][0] == pytest.approx(r, abs=0.1)
+    assert mover["velocity_m_s"][0] == pytest.approx(v, abs=0.15)

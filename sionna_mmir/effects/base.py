@@ -100,6 +100,9 @@ class Effect:
     #: scene or the moment: calibrated once into a sensor profile
     #: (:mod:`sionna_mmir.effects.profile`), not cross-validated inside one frame
     per_unit = False
+    #: the residual loop adopts it only while it explains at least this much
+    #: (nats per held-out sample; :meth:`gain_floor`)
+    min_gain_per_sample = 0.0
 
     @property
     def scene_side(self) -> bool:
@@ -109,6 +112,11 @@ class Effect:
     def supports(self, ctx) -> bool:
         """Whether a capture of ``ctx``'s shape can identify the effect (default: any)."""
         return True
+
+    def gain_floor(self, ctx) -> float:
+        """Least held-out gain per sample [nats] for adoption on a capture of
+        ``ctx``'s shape (default: :attr:`min_gain_per_sample`)."""
+        return float(self.min_gain_per_sample)
 
     def param_specs(self, ctx, model: np.ndarray, residual: np.ndarray) -> dict:
         """Parameter blocks with data-driven initial values.

@@ -323,7 +323,7 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
     """One round's ranking, mean (and scene) candidates first (see the module
     docstring): ``(ranking, best)`` with ``best`` None when nothing should be
     adopted.  Screened candidates are left out."""
-    floor = {c.name: max(min_gain, getattr(c, "min_gain_per_sample", 0.0)) for c in pool}
+    floor = {c.name: max(min_gain, c.gain_floor(tiers.model.ctx)) for c in pool}
     kinds_of = {c.name: c.kind for c in pool}
 
     def ok(c):

@@ -233,8 +233,9 @@ class MovingScatterer(Effect):
     """
 
     name = "moving_scatterer"
-    #: a repeatable scene detail is adopted only while it explains this much
-    #: (nats per held-out sample): diffuse clutter is not a list of missing scatterers
+    #: tracked over frames of one chirp each, a repeatable scene detail is
+    #: adopted only while it explains this much (nats per held-out sample):
+    #: diffuse clutter is not a list of movers (:meth:`gain_floor`)
     min_gain_per_sample = 0.1
     chirp_static = False
     kind = "mean"
@@ -263,6 +264,15 @@ class MovingScatterer(Effect):
         chirp of one frame a mover is a static scatterer with a free velocity,
         which the held-out score cannot tell from ``missing_scatterer``."""
         return ctx.num_frames >= 2 or ctx.shape[3] >= 2
+
+    def gain_floor(self, ctx) -> float:
+        """:attr:`min_gain_per_sample` when the init tracks the residual itself
+        (one chirp loop per frame); none beyond the loop's own with several
+        loops, where the init sees only what changes from chirp to chirp and
+        static clutter, however much of it the scene lacks, cannot pose as a
+        mover (a weak walker explains a few thousandths of a nat per sample
+        of a whole frame)."""
+        return self.min_gain_per_sample if ctx.shape[3] < 2 else 0.0
 
     @single_blas
     def param_specs(self, ctx, model, residual):
