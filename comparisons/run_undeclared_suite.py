@@ -16,8 +16,8 @@ effects were planted, the pose offset) is read only to score the report.
 Scores (truth: the generator's planted effects):
 
 * single effects: the planted effect adopted, and first among the adopted
-  effects of its side (sensor effects; scene-side effects for the scene
-  ones);
+  effects of its side (sensor effects); a planted missing or moving
+  scatterer adopted at its range, azimuth (and radial velocity);
 * pairs: both planted effects adopted;
 * clean control: no sensor effect adopted;
 * outside the library: no sensor effect adopted, the rest significant and
@@ -33,6 +33,8 @@ import os
 import shutil
 import sys
 import time
+
+import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -81,12 +83,43 @@ def score_case(case, doc) -> dict:
     elif len(lib) == 1:
         e = lib[0]
         if e in scene_names:
-            out["ok"] = e in scene
+            out["ok"] = e in scene and _located(case, doc, e)
         else:
             out["ok"] = bool(sensor) and sensor[0] == e
     else:
         out["ok"] = all(e in adopted for e in lib)
     return out
+
+
+#: a point the loop adopts for a planted one lies this close to it
+#: (range [m], azimuth [deg], radial velocity [m/s])
+LOCATION_TOLERANCE = (0.15, 2.0, 0.2)
+
+
+def _located(case, doc, name) -> bool:
+    """Whether an adopted ``name`` (missing or moving scatterer) sits at the
+    planted point (range and azimuth from the radar, radial velocity;
+    :data:`LOCATION_TOLERANCE`); other effects: True.  Truth: the generator's
+    planted position, velocity and radar pose."""
+    truth = case.truth["effects"][name]
+    if name not in ("missing_scatterer", "moving_scatterer"):
+        return True
+    d = np.asarray(truth["position_m"]) - np.asarray(case.truth["radar_true"]["position_m"])
+    rng, az = float(np.linalg.norm(d)), float(np.degrees(np.arctan2(d[1], d[0])))
+    dr, daz, dv = LOCATION_TOLERANCE
+    for a in doc["adoptions"]:
+        if a["name"] != name:
+            continue
+        p = a["params"]
+        r_fit = float(np.ravel(p["range_m"])[0])
+        az_fit = float(np.ravel(p["azimuth_deg"])[0])
+        ok = abs(r_fit - rng) < dr and abs(az_fit - az) < daz
+        if name == "moving_scatterer":
+            ok = ok and abs(float(np.ravel(p["velocity_m_s"])[0])
+                            - truth["radial_velocity_mps"]) < dv
+        if ok:
+            return True
+    return False
 
 
 def _table(rows) -> list:
