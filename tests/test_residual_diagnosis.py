@@ -277,21 +277,3 @@ def test_12_a_weak_walker_is_adopted_beside_a_strong_static_point_the_scene_lack
     mover = next(a for a in d.adoptions if a.name == "moving_scatterer").params
     assert mover["range_m"][0] == pytest.approx(r, abs=0.1)
     assert mover["velocity_m_s"][0] == pytest.approx(v, abs=0.15)
-
-
-def test_13_no_if_filter_for_a_scene_misfit():
-    """Three points the scene lacks make the residual non-white; an IF filter's
-    noise shape gains on that (it lowered the floor away from them and was
-    adopted first) although the capture has no filter.  Candidates that
-    change the noise model wait until no mean-only candidate helps: the
-    missing scatterers are adopted, the IF filter is not (truth: planted
-    points, no filter)."""
-    from sionna_mmir.effects.library.if_filter import IFFilter
-
-    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
-    clean = _clean(radar)
-    points = synthesize_adc(radar, np.full(3, 0.3), 2 * np.array([2.6, 4.1, 5.3]) / C)[None]
-    y = clean + points + _noise(clean.shape, 0.02, 4)
-    d = diagnose(EffectModel(EffectContext(radar), y, clean), [IFFilter(), MissingScatterer()],
-                 max_rounds=2)
-    assert [a.name for a in d.adoptions] == ["missing_scatterer"] * 2

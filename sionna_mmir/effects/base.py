@@ -113,12 +113,6 @@ class Effect:
         """Whether a capture of ``ctx``'s shape can identify the effect (default: any)."""
         return True
 
-    def signal_only(self):
-        """For an effect that also shapes the receiver noise: a copy that
-        models its mean signature alone (the residual loop ranks it among the
-        mean-only candidates); None otherwise."""
-        return None
-
     def gain_floor(self, ctx) -> float:
         """Least held-out gain per sample [nats] for adoption on a capture of
         ``ctx``'s shape (default: :attr:`min_gain_per_sample`)."""

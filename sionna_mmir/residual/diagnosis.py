@@ -28,18 +28,11 @@ cells are held out instead.
 
 Mean before variance.  A variance effect (phase-noise skirt, coloured noise
 floor) can raise the likelihood of *any* structured residual by widening
-the noise where the residual is large; a mean effect explains it.  So can
-a mean effect that also shapes the receiver noise (the IF filter): a scene
-misfit in a few range bins makes the residual non-white, and a noise
-shape that lowers the floor elsewhere gains on it although no filter is
-there.  Each round therefore ranks the candidates that change the mean only
-first and adopts the best one when its score is positive (a noise shaper
-enters there with its mean signature alone, :meth:`Effect.signal_only
-<sionna_mmir.effects.base.Effect.signal_only>`, and is adopted whole when
-that wins); the candidates that change the noise model (variance kind, or
-``shapes_noise``) are scored (and may be adopted) only in a round where no
-mean-only candidate helps, variance-kind ones only when they help in most
-transmit slots (frame, Tx, chirp; in TDM-MIMO
+the noise where the residual is large; a mean effect explains it.  Each
+round therefore ranks the mean-kind candidates first and adopts the best
+one when its score is positive; the variance-kind candidates are scored
+(and may be adopted) only in a round where no mean candidate helps, and
+only when they help in most transmit slots (frame, Tx, chirp; in TDM-MIMO
 every Tx fires in its own slot) (:data:`MIN_SLOT_SHARE`):
 a stationary noise model that gains in a few chirps only is absorbing a
 localised disturbance (interference, a burst), which is reported as
@@ -326,17 +319,10 @@ def _averaged_scoring(eff) -> bool:
 MIN_SLOT_SHARE = 0.5
 
 
-def _changes_noise(eff) -> bool:
-    """Whether ``eff`` changes the noise model (a variance effect, or a mean
-    effect that also shapes the receiver noise)."""
-    return eff.kind == "variance" or bool(getattr(eff, "shapes_noise", False))
-
-
 def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
-    """One round's ranking, mean-only (and scene) candidates first, those that
-    change the noise model next (see the module docstring): ``(ranking,
-    best)`` with ``best`` None when nothing should be adopted.  Screened
-    candidates are left out."""
+    """One round's ranking, mean (and scene) candidates first (see the module
+    docstring): ``(ranking, best)`` with ``best`` None when nothing should be
+    adopted.  Screened candidates are left out."""
     floor = {c.name: max(min_gain, c.gain_floor(tiers.model.ctx)) for c in pool}
     kinds_of = {c.name: c.kind for c in pool}
 
@@ -345,17 +331,11 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
         return c.score > 0 and c.gain_per_sample >= floor.get(c.name, min_gain) and stationary
 
     ranking = []
-    for noise_model in (False, True):
-        group = [c for c in pool if _changes_noise(c) == noise_model and c.name not in screened]
-        if not noise_model:            # noise shapers' mean signatures compete here too
-            group += [v for v in (c.signal_only() for c in pool
-                                  if c.kind == "mean" and _changes_noise(c)
-                                  and c.name not in screened) if v is not None]
+    for kinds in (("basis", "mean"), ("variance",)):
+        group = [c for c in pool if c.kind in kinds and c.name not in screened]
         if not group:
             continue
-        names = {c.name for c in group}
-        ranking = sorted([c for c in ranking if c.name not in names]
-                         + tiers.rank(group, penalty, maxiter, progress),
+        ranking = sorted(ranking + tiers.rank(group, penalty, maxiter, progress),
                          key=lambda c: c.score, reverse=True)
         best = next((c for c in ranking if ok(c)), None)
         if best is not None:

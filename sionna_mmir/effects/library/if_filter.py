@@ -58,8 +58,6 @@ lower approximate likelihood wins (see :meth:`IFFilter._init`).
 """
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
 from .. import ops
@@ -154,22 +152,10 @@ class IFFilter(Effect):
             check_int(owner, "extension", extension, 0, 4096),
             check_int(owner, "prediction_order", prediction_order, 1, 256))
 
-    def signal_only(self):
-        """The filter on the signal alone (``log_fc`` only, the floor left
-        white): what the residual loop weighs against the other mean-only
-        candidates, since a noise shape gains on any non-white residual."""
-        out = copy.deepcopy(self)
-        out.shapes_noise = False
-        return out
-
     # ------------------------------------------------------------------ init
     def param_specs(self, ctx, model, residual):
         self.extension.fit(model)
         (hl, hh), (ll, lh) = corner_bounds(ctx)
-        if not self.shapes_noise:
-            hp, lp = self._signal_init(ctx, model, model + residual, (hl, hh), (ll, lh))
-            return {"log_fc": ParamSpec([hp, lp], lower=[hl, ll], upper=[hh, lh],
-                                        unit="log10 kHz")}
         hp, lp, rho = self._init(ctx, model, model + residual, (hl, hh), (ll, lh))
         return {"log_fc": ParamSpec([hp, lp], lower=[hl, ll], upper=[hh, lh], unit="log10 kHz"),
                 "pre_noise": ParamSpec([rho], lower=0.0, upper=1.0, unit="share of the floor")}
@@ -341,6 +327,5 @@ class IFFilter(Effect):
         H = response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order)
         return {"highpass_corner_khz": round(10 ** hp, 4), "lowpass_corner_khz": round(10 ** lp, 4),
                 "lowpass_order": self.lowpass_order,
-                "filtered_noise_share": (round(float(np.ravel(p["pre_noise"])[0]), 4)
-                                         if "pre_noise" in p else 0.0),
+                "filtered_noise_share": round(float(np.ravel(p["pre_noise"])[0]), 4),
                 "min_gain_db_in_band": float(20 * np.log10(np.abs(H[1:]).min()))}
