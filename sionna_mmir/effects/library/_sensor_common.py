@@ -291,10 +291,7 @@ class RowExtension:
                          length=E.shape[1])
 
 
-def _pair_numpy(re, im) -> np.ndarray:
-    shape = tuple(re.shape)
-    return (np.asarray(re, np.float64).reshape(shape)
-            + 1j * np.asarray(im, np.float64).reshape(shape))
+_pair_numpy = ops._numpy_pair          # one home: complex128 from a float32 pair
 
 
 
