@@ -97,22 +97,30 @@ LOCATION_TOLERANCE = (0.15, 2.0, 0.2)
 
 
 def _located(case, doc, name) -> bool:
-    """Whether an adopted ``name`` (missing or moving scatterer) sits at the
-    planted point (range and azimuth from the radar, radial velocity;
-    :data:`LOCATION_TOLERANCE`); other effects: True.  Truth: the generator's
-    planted position, velocity and radar pose."""
+    """Whether an adopted ``name`` sits at the planted point (range and
+    azimuth from the radar, :data:`LOCATION_TOLERANCE`): a missing or moving
+    scatterer at its position (a mover also at its radial velocity), a
+    multipath ghost with its image there; other effects: True.  Truth: the
+    generator's planted position, image, velocity and radar pose."""
     truth = case.truth["effects"][name]
-    if name not in ("missing_scatterer", "moving_scatterer"):
+    key = {"missing_scatterer": "position_m", "moving_scatterer": "position_m",
+           "multipath_ghost": "image_m"}.get(name)
+    if key is None:
         return True
-    d = np.asarray(truth["position_m"]) - np.asarray(case.truth["radar_true"]["position_m"])
-    rng, az = float(np.linalg.norm(d)), float(np.degrees(np.arctan2(d[1], d[0])))
+    d = np.asarray(truth[key]) - np.asarray(case.truth["radar_true"]["position_m"])
     dr, daz, dv = LOCATION_TOLERANCE
     for a in doc["adoptions"]:
         if a["name"] != name:
             continue
         p = a["params"]
-        r_fit = float(np.ravel(p["range_m"])[0])
-        az_fit = float(np.ravel(p["azimuth_deg"])[0])
+        if name == "multipath_ghost":
+            if "image_m" not in p:
+                continue
+            r_fit, az_fit = _range_azimuth(np.asarray(p["image_m"], float))
+        else:
+            r_fit = float(np.ravel(p["range_m"])[0])
+            az_fit = float(np.ravel(p["azimuth_deg"])[0])
+        rng, az = _range_azimuth(d)
         ok = abs(r_fit - rng) < dr and abs(az_fit - az) < daz
         if name == "moving_scatterer":
             ok = ok and abs(float(np.ravel(p["velocity_m_s"])[0])
@@ -120,6 +128,11 @@ def _located(case, doc, name) -> bool:
         if ok:
             return True
     return False
+
+
+def _range_azimuth(d) -> tuple:
+    """``(range [m], azimuth [deg])`` of a radar-frame offset ``d [3]``."""
+    return float(np.linalg.norm(d)), float(np.degrees(np.arctan2(d[1], d[0])))
 
 
 def _table(rows) -> list:

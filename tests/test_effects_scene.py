@@ -301,11 +301,13 @@ def _floor_paths(radar, target, h):
                      dt[:, None] + ir[None], it[:, None] + ir[None]], -1) / C
 
 
-def _ghost_capture(radar, gamma, rng, target=TARGET, h=FLOOR_H, a=np.exp(0.3j)):
-    """``(direct, direct + floor ghost, noise)`` by direct synthesis with hand delays."""
+def _ghost_capture(radar, gamma, rng, target=TARGET, h=FLOOR_H, a=np.exp(0.3j), beta=1.0):
+    """``(direct, direct + floor ghost, noise)`` by direct synthesis with hand delays
+    (mixed paths ``gamma beta``, double bounce ``gamma^2``)."""
     tau = _floor_paths(radar, target, h)
     direct = direct_adc(radar, a, tau[..., :1])[None]
-    full = direct_adc(radar, a * np.array([1.0, gamma, gamma, gamma ** 2]), tau)[None]
+    full = direct_adc(radar, a * np.array([1.0, gamma * beta, gamma * beta, gamma ** 2]),
+                      tau)[None]
     return direct, full, _noise(full.shape, rng)
 
 
@@ -313,13 +315,14 @@ def test_09_ghost_gradient_matches_finite_differences():
     radar = RadarConfig.awr1843(num_chirps=1, num_samples=64)
     ctx = EffectContext(radar)
     rng = np.random.default_rng(5)
-    direct, full, noise = _ghost_capture(radar, 0.5 * np.exp(2j), rng)
+    direct, full, noise = _ghost_capture(radar, 0.5 * np.exp(2j), rng, beta=0.7)
     m = EffectModel(ctx, full + noise, direct)
     comp = m.add(MultipathGhost(plane=((0, 0, -FLOOR_H - 0.05), (0, 0, 1))))
-    assert comp.n_params == 3
+    assert comp.n_params == 4
     comp.values["offset"] = comp.values["offset"] + 0.01
     comp.values["gamma"] = comp.values["gamma"] * 0.8
-    err = _check_gradients(m, 0, {"offset": 1e-4, "gamma": 1e-3})
+    comp.values["mixed"] = comp.values["mixed"] * 0.8
+    err = _check_gradients(m, 0, {"offset": 1e-4, "gamma": 1e-3, "mixed": 1e-3})
     assert max(err.values()) < 0.02
 
 
@@ -346,7 +349,7 @@ def test_10_ghost_delays_and_signal_match_a_hand_computation():
     m = EffectModel(ctx, direct + 1e-3 * _noise(direct.shape, rng), direct)
     eff = MultipathGhost(plane=((0, 0, -FLOOR_H + 0.05), (0, 0, 1)))
     m.add(eff)
-    vals = {"offset": np.array([-0.05]), "gamma": np.array([0.3, -0.4])}
+    vals = {"offset": np.array([-0.05]), "gamma": np.array([0.3, -0.4]), "mixed": np.array([0.6])}
     x = m.b                                                     # normalised base: the target
     ghost = _apply(eff, x, vals, ctx) - x
     s = eff.summary(vals, ctx)
@@ -356,7 +359,7 @@ def test_10_ghost_delays_and_signal_match_a_hand_computation():
     tau = _floor_paths(radar, p_est, FLOOR_H)
     one = direct_adc(radar, 1.0, tau[..., :1])[None]
     a = np.vdot(one, x) / np.vdot(one, one)                     # target amplitude in x
-    hand = direct_adc(radar, a * np.array([g, g, g ** 2]), tau[..., 1:])[None]
+    hand = direct_adc(radar, a * np.array([0.6 * g, 0.6 * g, g ** 2]), tau[..., 1:])[None]
     assert np.abs(ghost - hand).max() < 3e-3 * np.abs(hand).max()
     img = p_est * np.array([1, 1, -1]) + np.array([0, 0, -2 * FLOOR_H])
     mixed = 0.5 * (np.linalg.norm(img) + np.linalg.norm(p_est))
@@ -380,14 +383,14 @@ def test_10b_ghost_scan_scores_equal_a_brute_force_least_squares_fit():
     z[0, 1] = 0
     img = image_point(p, np.zeros(3), np.array([0.0, 0.3, 0.95]) / np.hypot(0.3, 0.95),
                       np.linspace(-2.0, -0.4, 7))
-    gain, g1 = ghost_scores(ctx, z, p, a, img)
+    gain, coef = ghost_scores(ctx, z, p, a, img)
     s1, s2 = ghost_templates(ctx, p, img)
     for b in range(len(img)):
         A = np.stack([a * s1[b].ravel(), a * s2[b].ravel()], axis=1)
-        coef = np.linalg.lstsq(A, z.ravel(), rcond=None)[0]
-        removed = np.sum(np.abs(z) ** 2) - np.sum(np.abs(z.ravel() - A @ coef) ** 2)
+        coef_ls = np.linalg.lstsq(A, z.ravel(), rcond=None)[0]
+        removed = np.sum(np.abs(z) ** 2) - np.sum(np.abs(z.ravel() - A @ coef_ls) ** 2)
         assert gain[b] == pytest.approx(removed, rel=1e-9)
-        assert g1[b] == pytest.approx(coef[0], rel=1e-9)
+        assert coef[b] == pytest.approx(coef_ls, rel=1e-9)
 
 
 @pytest.mark.parametrize("plane", [((0, 0, -FLOOR_H - 0.07), (0, 0, 1)), None])
@@ -410,7 +413,35 @@ def test_11_ghost_gamma_and_plane_recovered(plane):
     # |Gamma| to 3 %; its phase rides on the fitted plane (lambda/2 per mm-ish of offset)
     assert s["gamma_abs"] == pytest.approx(abs(gamma), rel=0.03)
     assert abs(np.angle(g / gamma)) < 0.35
+    assert s["mixed"] == pytest.approx(1.0, abs=0.05)
     _check_fit(m, ctx, meas, direct, noise)
+
+
+def test_11b_retro_reflector_ghost_of_the_second_strongest_point():
+    """A trihedral-like target (double bounce only: ``beta = 0``) that is the
+    model's second-strongest point: the ghost is hung on it, not on the
+    strongest point, and its image, ``|Gamma|`` and ``beta`` come back
+    (truth: the planted floor image and coefficients, hand delays)."""
+    radar = RadarConfig.awr1843(num_chirps=1)
+    ctx = EffectContext(radar)
+    rng = np.random.default_rng(11)
+    strong = direct_adc(radar, 2.0, point_target_delays(radar, 2.2 * unit_vectors(-25.0)))[None]
+    gamma = 0.6 * np.exp(-0.4j)
+    direct, full, noise = _ghost_capture(radar, gamma, rng, beta=0.0)
+    model = strong + direct
+    meas = strong + full + noise
+    m = EffectModel(ctx, meas, model)
+    eff = MultipathGhost()
+    comp = m.add(eff)
+    m.fit()
+    s = eff.summary(comp.values, ctx)
+    assert np.linalg.norm(np.array(s["target_m"]) - TARGET) < 0.05
+    img = TARGET * np.array([1, 1, -1]) + np.array([0, 0, -2 * FLOOR_H])
+    assert np.linalg.norm(s["image_m"]) == pytest.approx(np.linalg.norm(img), abs=0.02)
+    assert s["plane_normal"] == pytest.approx([0, 0, 1], abs=1e-6)
+    assert s["gamma_abs"] == pytest.approx(abs(gamma), rel=0.05)
+    assert s["mixed"] < 0.05
+    _check_fit(m, ctx, meas, model, noise)
 
 
 def test_12_ghost_bad_arguments_raise_config_error():
@@ -424,6 +455,8 @@ def test_12_ghost_bad_arguments_raise_config_error():
         MultipathGhost(max_offset=0.0)
     with pytest.raises(ConfigError, match="min_range"):
         MultipathGhost(min_range=-1)
+    with pytest.raises(ConfigError, match="targets"):
+        MultipathGhost(targets=0)
 
 
 # ================================================================ ego motion

@@ -1,4 +1,4 @@
-"""Multipath ghost of the strongest scatterer via a flat surface (floor, wall).
+"""Multipath ghost of a strong scatterer via a flat surface (floor, wall).
 
 A point target ``p`` next to a flat surface (plane through ``q`` with unit
 normal ``n``, radar frame) is also reached over the surface.  With the image
@@ -10,25 +10,33 @@ images; exact per (tx, rx) pair)::
     tau_1b  = (|p  - tx_t| + |p' - rx_r|) / c     Tx -> target -> surface -> Rx
     tau_2   = (|p' - tx_t| + |p' - rx_r|) / c     Tx -> surface -> target -> surface -> Rx
 
-    x += a [Gamma (e^{j2pi(f0+S t_k) tau_1a} + e^{j2pi(f0+S t_k) tau_1b})
+    x += a [Gamma beta (e^{j2pi(f0+S t_k) tau_1a} + e^{j2pi(f0+S t_k) tau_1b})
             + Gamma^2 e^{j2pi(f0+S t_k) tau_2}]
 
 (the classic "multipath ghost" of automotive radar: a ghost at the mean of
 the direct and mirrored ranges from the mixed paths and one at the mirrored
-range from the double bounce).  The target ``p`` is the model's strongest
-point (range-azimuth peak of the model ADC, refined, found once in
-:meth:`MultipathGhost.param_specs`); its complex amplitude ``a`` is the LS
-amplitude of that point in the model signal the effect is applied to (so the
-ghost follows the model's gain).  ``Gamma`` is the surface's complex
+range from the double bounce).  ``Gamma`` is the surface's complex
 reflection coefficient (spreading-loss differences are folded into it).
+``beta`` is the target's bistatic-to-monostatic amplitude ratio
+``sqrt(sigma_bi / sigma_mono)`` at the bistatic angle of the mixed paths:
+1 for an isotropic point, near 0 for a retro-reflector (a trihedral returns
+the double bounce, which it sees monostatically from the image radar, and
+little of the mixed paths).
+
+The target ``p`` is one of the model's strongest points (range-azimuth
+peaks of the model ADC, refined, :func:`~.scatterer.strongest_points`): the
+one whose ghost removes the most residual energy, found once in
+:meth:`MultipathGhost.param_specs`.  Its complex amplitude ``a`` is the LS
+amplitude of that point in the model signal the effect is applied to (so the
+ghost follows the model's gain).
 
 Parameters: ``offset`` ``[1]`` [m], a shift of the plane along its normal
-(``q -> q + offset n``), and ``gamma`` ``[2]`` (re, im) -- 3 numbers.
-``gamma`` is referred to the carrier phase of the extra path length at the
-centre frequency: ``gamma = Gamma exp(j 2 pi f_c (|p'| - |p|) / c)`` so the
-plane offset moves the ghost without rotating it; then the double bounce has
-exactly ``gamma^2`` (see :func:`ghost_signal_np`).  The summary reports the
-physical ``Gamma``.
+(``q -> q + offset n``), ``gamma`` ``[2]`` (re, im) and ``mixed`` ``[1]``
+(``beta``, 0 .. 1.5) -- 4 numbers.  ``gamma`` is referred to the carrier
+phase of the extra path length at the centre frequency: ``gamma = Gamma
+exp(j 2 pi f_c (|p'| - |p|) / c)`` so the plane offset moves the ghost
+without rotating it; then the double bounce has exactly ``gamma^2`` (see
+:func:`ghost_signal_np`).  The summary reports the physical ``Gamma``.
 """
 from __future__ import annotations
 
@@ -39,7 +47,7 @@ from .. import ops
 from ..base import Effect, ParamSpec
 from .scatterer import (C0, DrGeometry, _freq_terms, carrier_phase, dr_ref_phase, excess_np,
                         has_elevation_aperture, ref_phase_np, single_blas, static_view,
-                        strongest_point)
+                        strongest_points, unit_vectors)
 
 dr, mi = ops.dr, ops.mi
 
@@ -89,16 +97,39 @@ def ghost_templates(ctx, p, img):
     return single, double
 
 
-def ghost_signal_np(ctx, p, a_ref, q, n, offset, gamma_ref) -> np.ndarray:
+def ghost_signal_np(ctx, p, a_ref, q, n, offset, gamma_ref, mixed=1.0) -> np.ndarray:
     """The ghost ``[T, R, N]`` (NumPy reference of :meth:`MultipathGhost.apply`)."""
     single, double = ghost_templates(ctx, p, image_point(p, q, n, offset))
-    return a_ref * (gamma_ref * single + gamma_ref ** 2 * double)
+    return a_ref * (gamma_ref * mixed * single + gamma_ref ** 2 * double)
+
+
+def gamma_and_mixed(coef, single, double, z, a):
+    """``(gamma_ref, beta)`` of the ghost closest to the free least-squares
+    coefficients ``coef = (c_single, c_double)`` of the templates ``single``,
+    ``double [T, R, N]`` on ``z`` (target amplitude ``a``): either the double
+    bounce kept (``gamma = sqrt(c_double)``, ``beta = Re(c_single / gamma)``) or
+    the mixed paths kept (``gamma = c_single``, ``beta = 1``), whichever leaves
+    less of ``z``."""
+    c1, c2 = complex(coef[0]), complex(coef[1])
+    g = np.sqrt(c2)
+    if (c1 * np.conj(g)).real < 0:
+        g = -g
+    options = [(c1, 1.0)]
+    if abs(g) > 1e-12:
+        options.append((g, float(np.clip((c1 / g).real, 0.0, 1.5))))
+
+    def left(opt):
+        gm, b = opt
+        return np.sum(np.abs(z - a * (gm * b * single + gm ** 2 * double)) ** 2)
+
+    return min(options, key=left)
 
 
 def ghost_scores(ctx, z, p, a, img):
     """Energy removed from ``z [T, R, N]`` by a least-squares fit of the ghost of ``p``
     (amplitude ``a``) at each image point ``img [B, 3]``, and the fitted
-    single-bounce coefficient: ``(gain [B], gamma_ref [B])``.
+    coefficients of the single- and double-bounce templates: ``(gain [B],
+    coef [B, 2])`` (free coefficients: an upper bound on the ghost's gain).
 
     The referred phase is separable, ``exp(j phase) = U_t[n] V_r[n] w[n]``
     (:func:`ref_phase_np`: a Tx term, an Rx term and an origin term), so the
@@ -138,7 +169,7 @@ def ghost_scores(ctx, z, p, a, img):
     G, rhs = G * abs(a) ** 2, rhs * np.conj(a)
     coef = np.linalg.solve(G + 1e-9 * np.eye(2), rhs[..., None])[..., 0]
     gain = np.einsum("bi,bi->b", np.conj(coef), rhs).real
-    return gain, coef[:, 0]
+    return gain, coef
 
 
 def target_amplitude(x, ctx, p):
@@ -155,7 +186,8 @@ def target_amplitude(x, ctx, p):
 
 
 class MultipathGhost(Effect):
-    """Multipath ghost of the model's strongest scatterer via a flat surface (3 parameters).
+    """Multipath ghost of one of the model's strongest scatterers via a flat surface
+    (4 parameters).
 
     The target and (default) the plane chosen at init are kept on the
     instance (``target_``, ``plane_``), so use one instance per model.
@@ -173,15 +205,17 @@ class MultipathGhost(Effect):
         bound of the plane offset refinement [m]
     min_range : float, optional
         smallest target range considered [m]
+    targets : int, optional
+        how many of the model's strongest points are tried as the target
     """
 
     name = "multipath_ghost"
     kind = "mean"
     stage = 0
-    description = "multipath ghost of the strongest scatterer via a flat surface"
+    description = "multipath ghost of a strong scatterer via a flat surface"
 
     def __init__(self, plane=None, distances=(0.2, 4.0), max_offset: float = 0.25,
-                 min_range: float = 0.3):
+                 min_range: float = 0.3, targets: int = 3):
         self.plane = None if plane is None else check_plane(plane)
         try:
             lo, hi = (float(v) for v in distances)
@@ -195,6 +229,10 @@ class MultipathGhost(Effect):
             raise ConfigError(f"MultipathGhost: max_offset must be > 0 m, got {max_offset}")
         if not np.isfinite(min_range) or min_range < 0:
             raise ConfigError(f"MultipathGhost: min_range must be >= 0 m, got {min_range}")
+        if int(targets) != targets or targets < 1:
+            raise ConfigError(f"MultipathGhost: targets must be a whole number >= 1, "
+                              f"got {targets}")
+        self.targets = int(targets)
         self.distances = (lo, hi)
         self.max_offset = float(max_offset)
         self.min_range = float(min_range)
@@ -202,13 +240,12 @@ class MultipathGhost(Effect):
         self.target_ = None
 
     # ---------------------------------------------------------- init
-    def _target(self, ctx, model):
+    def _targets(self, ctx, model):
+        """``[(p [3] m, A_ref)]``: the model's strongest points, strongest first."""
         radar = ctx.radar
-        r, az, el, a = strongest_point(static_view(model), ctx, self.min_range,
-                                       0.95 * radar.max_range, has_elevation_aperture(radar))
-        az_r, el_r = np.radians(az), np.radians(el)
-        p = r * np.array([np.cos(el_r) * np.cos(az_r), np.cos(el_r) * np.sin(az_r), np.sin(el_r)])
-        return p, a
+        found = strongest_points(static_view(model), ctx, self.min_range, 0.95 * radar.max_range,
+                                 has_elevation_aperture(radar), self.targets)
+        return [(r * unit_vectors(az, el), a) for r, az, el, a in found]
 
     def _candidates(self, ctx, p, step):
         """``[(q, n, offsets)]`` to score: the given plane +- max_offset, or the families."""
@@ -227,7 +264,7 @@ class MultipathGhost(Effect):
 
     @staticmethod
     def _scan(ctx, z, p, a, q, n, offs):
-        """Best ``(gain, offset, gamma_ref)`` of one plane over ``offs`` (None: none resolvable)."""
+        """Best ``(gain, offset, coef [2])`` of one plane over ``offs`` (None: none resolvable)."""
         img = image_point(p, q, n, offs)                                    # [B, 3]
         extra = np.linalg.norm(img, axis=1) - np.linalg.norm(p)
         keep = extra > 1.5 * ctx.radar.range_resolution                    # resolvable ghost
@@ -239,9 +276,9 @@ class MultipathGhost(Effect):
         return gain[j], offs[j], g1[j]
 
     def _search(self, ctx, z, p, a):
-        """Best ``(q, n, offset, gamma_ref)`` by LS energy reduction: a grid of two thirds
-        of a range bin over the candidates (the score's peak is a range bin wide),
-        then a sixth of that about the best."""
+        """Best ``(gain, q, n, offset, coef [2])`` by LS energy reduction (None: no
+        resolvable ghost): a grid of two thirds of a range bin over the candidates
+        (the score's peak is a range bin wide), then a sixth of that about the best."""
         coarse = ctx.radar.range_resolution / 1.5
         best = None
         for q, n, offs in self._candidates(ctx, p, coarse):
@@ -249,22 +286,30 @@ class MultipathGhost(Effect):
             if found is not None and (best is None or found[0] > best[0][0]):
                 best = (found, q, n)
         if best is None:
-            raise ConfigError("MultipathGhost: no candidate plane gives a resolvable ghost "
-                              f"(distances={self.distances})")
-        (_, off, g), q, n = best
+            return None
+        (gain, off, c), q, n = best
         fine = off + np.linspace(-coarse, coarse, 13)
         if self.plane is not None:
             fine = np.clip(fine, -self.max_offset, self.max_offset)
         found = self._scan(ctx, z, p, a, q, n, fine)
         if found is not None:
-            _, off, g = found
-        return q, n, off, g
+            gain, off, c = found
+        return gain, q, n, off, c
 
     @single_blas
     def param_specs(self, ctx, model, residual):
-        p, a = self._target(ctx, model)
         z = static_view(residual)
-        q, n, off, g = self._search(ctx, z, p, a)
+        best = None
+        for p, a in self._targets(ctx, model):
+            found = self._search(ctx, z, p, a)
+            if found is not None and (best is None or found[0] > best[0][0]):
+                best = (found, p, a)
+        if best is None:
+            raise ConfigError("MultipathGhost: no candidate plane gives a resolvable ghost "
+                              f"(distances={self.distances})")
+        (_, q, n, off, c), p, a = best
+        single, double = ghost_templates(ctx, p, image_point(p, q, n, off))
+        g, beta = gamma_and_mixed(c, single, double, z, a)
         if self.plane is None:               # re-centre the found plane: offset starts at 0
             q, off = q + off * n, 0.0
         self.plane_ = (q, n)
@@ -274,7 +319,9 @@ class MultipathGhost(Effect):
         return {"offset": ParamSpec([off], lower=-self.max_offset, upper=self.max_offset,
                                     unit="m"),
                 "gamma": ParamSpec([g.real, g.imag], lower=-2.0, upper=2.0,
-                                   unit="complex (referred to f_c, |p'| - |p|)")}
+                                   unit="complex (referred to f_c, |p'| - |p|)"),
+                "mixed": ParamSpec([beta], lower=0.0, upper=1.5,
+                                   unit="sqrt(sigma_bistatic / sigma_mono)")}
 
     # --------------------------------------------------------- forward
     def apply(self, x, p, ctx):
@@ -296,13 +343,15 @@ class MultipathGhost(Effect):
         s2 = ops.cis(dr_ref_phase(geo, I, I, nI, nI))
         g = (ops.column(ops.view(p["gamma"], (1, 2)), 0, one),
              ops.column(ops.view(p["gamma"], (1, 2)), 1, one))
-        ghost = ops.cadd(ops.cmul(s1, g), ops.cmul(s2, ops.cmul(g, g)))
+        beta = ops.view(p["mixed"], one)
+        ghost = ops.cadd(ops.cmul(s1, (g[0] * beta, g[1] * beta)), ops.cmul(s2, ops.cmul(g, g)))
         return ops.cadd(x, ops.cmul(ghost, a))
 
     def summary(self, p, ctx):
         off = float(p["offset"][0])
         g_ref = complex(p["gamma"][0], p["gamma"][1])
-        out = {"offset_m": round(off, 5), "gamma_abs": round(abs(g_ref), 5)}
+        out = {"offset_m": round(off, 5), "gamma_abs": round(abs(g_ref), 5),
+               "mixed": round(float(p["mixed"][0]), 5)}
         if self.target_ is not None:
             tgt, a = self.target_
             q, n = self.plane_
@@ -313,6 +362,7 @@ class MultipathGhost(Effect):
                         "plane_point_m": (q + off * n).round(4).tolist(),
                         "plane_normal": n.round(4).tolist(),
                         "target_m": tgt.round(4).tolist(),
+                        "image_m": img.round(4).tolist(),
                         "ghost_ranges_m": [round(float(np.linalg.norm(tgt) + extra / 2), 4),
                                            round(float(np.linalg.norm(img)), 4)]})
         return out

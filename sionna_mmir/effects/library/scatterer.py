@@ -231,12 +231,8 @@ def refine_point(z, ctx, r0, az0, el0=0.0, fit_el=False):
     return float(v[0]), float(v[1]), el, a
 
 
-def strongest_point(z, ctx, min_range, max_range, fit_el, az_limit=80.0):
-    """Strongest point of ``z [T, R, N]``: grid peak of the range-azimuth map, refined.
-
-    Returns ``(r [m], az [deg], el [deg], A_ref)``.
-    """
-    az_grid = np.arange(-az_limit, az_limit + 1e-9, 0.5)
+def _grid_peak(z, ctx, min_range, max_range, az_grid):
+    """``(range [m], az [deg], power)`` of the range-azimuth map's peak in range."""
     power, ranges = range_azimuth_map(z, ctx, az_grid)
     ok = (ranges >= min_range) & (ranges <= max_range)
     if not ok.any():
@@ -244,12 +240,43 @@ def strongest_point(z, ctx, min_range, max_range, fit_el, az_limit=80.0):
                           f"max_range={max_range} m")
     power = np.where(ok[:, None], power, -1.0)
     m, a = np.unravel_index(int(np.argmax(power)), power.shape)
-    r, az, el, amp = refine_point(z, ctx, ranges[m], az_grid[a])
-    if fit_el:
-        el_grid = np.arange(-45.0, 45.1, 3.0)
-        pw = [matched_power(z, ctx, r * unit_vectors(az, e))[0] for e in el_grid]
-        r, az, el, amp = refine_point(z, ctx, r, az, el_grid[int(np.argmax(pw))], fit_el=True)
-    return r, az, el, amp
+    return ranges[m], az_grid[a], power[m, a]
+
+
+def strongest_points(z, ctx, min_range, max_range, fit_el, count=1, az_limit=80.0,
+                     depth_db=30.0):
+    """Up to ``count`` strongest points of ``z [T, R, N]``, strongest first, by
+    CLEAN: the grid peak of the range-azimuth map, refined, its point signal
+    subtracted, again, until a peak is ``depth_db`` under the first (so a
+    point's side lobes are never taken for another point).
+
+    Returns ``[(r [m], az [deg], el [deg], A_ref)]`` (at least one).
+    """
+    az_grid = np.arange(-az_limit, az_limit + 1e-9, 0.5)
+    z = np.array(z, dtype=complex)
+    out, first = [], None
+    for _ in range(max(int(count), 1)):
+        r0, az0, pw = _grid_peak(z, ctx, min_range, max_range, az_grid)
+        first = pw if first is None else first
+        if pw < first * 10 ** (-depth_db / 10):
+            break
+        r, az, el, amp = refine_point(z, ctx, r0, az0)
+        if fit_el:
+            el_grid = np.arange(-45.0, 45.1, 3.0)
+            pw = [matched_power(z, ctx, r * unit_vectors(az, e))[0] for e in el_grid]
+            r, az, el, amp = refine_point(z, ctx, r, az, el_grid[int(np.argmax(pw))],
+                                          fit_el=True)
+        out.append((r, az, el, amp))
+        z -= amp * np.exp(1j * ref_phase_np(ctx, *(2 * [r * unit_vectors(az, el)])))
+    return out
+
+
+def strongest_point(z, ctx, min_range, max_range, fit_el, az_limit=80.0):
+    """Strongest point of ``z [T, R, N]``: grid peak of the range-azimuth map, refined.
+
+    Returns ``(r [m], az [deg], el [deg], A_ref)``.
+    """
+    return strongest_points(z, ctx, min_range, max_range, fit_el, 1, az_limit)[0]
 
 
 def check_range_limits(cls_name, min_range, max_range):
