@@ -277,3 +277,41 @@ def test_12_a_weak_walker_is_adopted_beside_a_strong_static_point_the_scene_lack
     mover = next(a for a in d.adoptions if a.name == "moving_scatterer").params
     assert mover["range_m"][0] == pytest.approx(r, abs=0.1)
     assert mover["velocity_m_s"][0] == pytest.approx(v, abs=0.15)
+
+
+@pytest.mark.parametrize("planted", ["frequency_offset", "delay_offset"])
+def test_13_the_simpler_of_two_sensor_effects_that_explain_the_same_is_adopted(planted):
+    """The scene places one of two points 0.3 deg off (a misfit that per-Tx
+    and per-Rx delays mimic as a phase screen, and a missing scatterer in
+    part).  A planted beat-frequency offset (1 number) is adopted, not the
+    delays (7), which gain a little more by also steering that point; planted
+    per-Tx / per-Rx delays are still adopted as delays (truth: the planted
+    effect; hand delays and phases)."""
+    from helpers import direct_adc, point_target_delays
+    from sionna_mmir.effects.library.delay_offset import DelayOffset
+    from sionna_mmir.effects.library.frequency_offset import FrequencyOffset
+    from sionna_mmir.effects.library.scatterer import unit_vectors
+
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    ctx = EffectContext(radar)
+
+    def scene(az):
+        return sum(direct_adc(radar, a, point_target_delays(radar, r * unit_vectors(b)))
+                   for r, b, a in ((2.0, 0.0, 1.0), (3.3, az, 0.6j)))[None]
+
+    rng = np.random.default_rng(0)
+    t = ctx.fast_time
+    if planted == "frequency_offset":
+        phase = 2 * np.pi * 3e3 * t
+    else:
+        T, R = radar.num_tx, radar.num_rx
+        dtau = (rng.uniform(-60, 60, T)[:, None] + rng.uniform(-60, 60, R)[None]) * 1e-12
+        phase = (2 * np.pi * (radar.start_frequency + radar.slope * t)
+                 * dtau[None, :, :, None, None])
+    y = scene(20.3) * np.exp(1j * phase) + _noise((1,) + scene(20.0).shape[1:], 0.01, 0)
+    d = diagnose(EffectModel(ctx, y, scene(20.0)),
+                 [DelayOffset(), FrequencyOffset(), MissingScatterer()], max_rounds=1)
+    assert d.adopted == [planted], [(c.name, c.gain) for c in d.adoptions[0].candidates]
+    gains = {c.name: c.gain for c in d.adoptions[0].candidates}
+    if planted == "frequency_offset":      # the delays do gain more: the rule decides
+        assert gains["delay_offset"] > gains["frequency_offset"] > 0.9 * gains["delay_offset"]

@@ -318,6 +318,35 @@ def _averaged_scoring(eff) -> bool:
 #: transmit slots (:func:`slot_share`): it models stationary noise
 MIN_SLOT_SHARE = 0.5
 
+#: two sensor effects explain "the same residual" when the simpler one's
+#: held-out gain is at least this share of the richer one's (:func:`_parsimonious`)
+PARSIMONY_SHARE = 0.9
+
+
+def _parsimonious(ranking, best, ok, scene_side):
+    """The sensor effect adopted in place of ``best``: the one with the fewest
+    parameters among the acceptable sensor-side candidates that explain
+    nearly what ``best`` explains (held-out gain at least
+    :data:`PARSIMONY_SHARE` of ``best``'s) while ``best``'s surplus over them
+    is less than a scene-side candidate explains in the same round; ``best``
+    itself when there is none, or when ``best`` is scene-side.
+
+    Two sensor effects that explain nearly the same residual differ by what
+    the richer one also mimics: per-Tx and per-Rx delays are a separable
+    phase screen across the array, which steers a scatterer the scene places
+    a little off, so a per-chip beat offset (4 numbers) loses to them (28)
+    by the scene misfit they absorb.  While a scene-side candidate explains
+    more than that surplus, the surplus is left to the scene (scene mismatch
+    before sensor effects); a richer effect that is really there keeps its
+    gain after the simpler one and is adopted in a later round."""
+    if scene_side.get(best.name, True):
+        return best
+    scene = max((c.gain for c in ranking if ok(c) and scene_side.get(c.name, True)), default=0.0)
+    close = [c for c in ranking if ok(c) and not scene_side.get(c.name, True)
+             and c.n_params < best.n_params and c.gain >= PARSIMONY_SHARE * best.gain
+             and best.gain - c.gain < scene]
+    return min(close, key=lambda c: (c.n_params, -c.score)) if close else best
+
 
 def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
     """One round's ranking, mean (and scene) candidates first (see the module
@@ -325,6 +354,7 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
     adopted.  Screened candidates are left out."""
     floor = {c.name: max(min_gain, c.gain_floor(tiers.model.ctx)) for c in pool}
     kinds_of = {c.name: c.kind for c in pool}
+    scene_side = {c.name: c.scene_side for c in pool}
 
     def ok(c):
         stationary = kinds_of.get(c.name) != "variance" or c.slot_share >= MIN_SLOT_SHARE
@@ -339,7 +369,7 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
                          key=lambda c: c.score, reverse=True)
         best = next((c for c in ranking if ok(c)), None)
         if best is not None:
-            return ranking, best
+            return ranking, _parsimonious(ranking, best, ok, scene_side)
     return ranking, None
 
 
