@@ -36,7 +36,10 @@ only when they help in most transmit slots (frame, Tx, chirp; in TDM-MIMO
 every Tx fires in its own slot) (:data:`MIN_SLOT_SHARE`):
 a stationary noise model that gains in a few chirps only is absorbing a
 localised disturbance (interference, a burst), which is reported as
-unexplained instead.  The adopted effect is then refitted jointly with all adopted effects on all
+unexplained instead.  Of two sensor effects that explain nearly the same,
+the one with fewer parameters is adopted while the richer one's surplus is
+scene misfit a scene-side candidate could take (:func:`_parsimonious`).
+The adopted effect is then refitted jointly with all adopted effects on all
 cells, and the next round starts.  It stops when nothing helps, and reports
 what stays unexplained.
 """
