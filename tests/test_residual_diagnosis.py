@@ -315,3 +315,44 @@ def test_13_the_simpler_of_two_sensor_effects_that_explain_the_same_is_adopted(p
     gains = {c.name: c.gain for c in d.adoptions[0].candidates}
     if planted == "frequency_offset":      # the delays do gain more: the rule decides
         assert gains["delay_offset"] > gains["frequency_offset"] > 0.9 * gains["delay_offset"]
+
+
+def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
+    """``_rank_round`` on fixed held-out gains: a sensor effect that beats the
+    best scene-side candidate by less than ``SCENE_MARGIN`` of its gain gives
+    way to it; by more, it is adopted; unacceptable scene candidates (gain
+    under their floor) do not count; then the parsimony rule picks among
+    sensor effects."""
+    from sionna_mmir.effects.library.coupling import Coupling
+    from sionna_mmir.effects.library.delay_offset import DelayOffset
+    from sionna_mmir.effects.library.frequency_offset import FrequencyOffset
+    from sionna_mmir.residual.diagnosis import SCENE_MARGIN, CandidateScore, _rank_round
+
+    class Tiers:                                     # fixed gains, one held-out sample each
+        def __init__(self, gains):
+            self.model = type("M", (), {"ctx": None})()
+            self.gains = gains
+
+        def rank(self, group, penalty, maxiter, progress):
+            return [CandidateScore(e.name, n, g, g / 1e4, g - n, [g])
+                    for e in group for (name, (g, n)) in self.gains.items() if name == e.name]
+
+    pool = [ChannelGain(), MissingScatterer(), DelayOffset(), FrequencyOffset(), Coupling()]
+    for c in pool:
+        c.gain_floor = lambda ctx: 0.0
+    just_under = (1 - SCENE_MARGIN) * 1000 - 5
+    cases = [({"channel_gain": (1000, 14), "missing_scatterer": (just_under + 10, 5)},
+              "missing_scatterer"),
+             ({"channel_gain": (1000, 14), "missing_scatterer": (just_under, 5)}, "channel_gain"),
+             ({"delay_offset": (1000, 28), "frequency_offset": (950, 4),
+               "missing_scatterer": (100, 5)}, "frequency_offset"),
+             ({"delay_offset": (1000, 28), "frequency_offset": (950, 4),
+               "missing_scatterer": (20, 5)}, "delay_offset"),
+             ({"delay_offset": (1000, 28), "frequency_offset": (850, 4),
+               "missing_scatterer": (100, 5)}, "delay_offset")]
+    for gains, expected in cases:
+        _, best = _rank_round(Tiers(gains), pool, 1.0, 10, None, 0.0, set())
+        assert best.name == expected, (gains, best.name)
+    pool[1].gain_floor = lambda ctx: 1.0             # the scatterer is not acceptable
+    _, best = _rank_round(Tiers(cases[0][0]), pool, 1.0, 10, None, 0.0, set())
+    assert best.name == "channel_gain"

@@ -38,7 +38,9 @@ a stationary noise model that gains in a few chirps only is absorbing a
 localised disturbance (interference, a burst), which is reported as
 unexplained instead.  Of two sensor effects that explain nearly the same,
 the one with fewer parameters is adopted while the richer one's surplus is
-scene misfit a scene-side candidate could take (:func:`_parsimonious`).
+scene misfit a scene-side candidate could take (:func:`_parsimonious`), and
+a sensor effect must beat every scene-side candidate by a margin
+(:func:`_scene_first`).
 The adopted effect is then refitted jointly with all adopted effects on all
 cells, and the next round starts.  It stops when nothing helps, and reports
 what stays unexplained.
@@ -321,6 +323,31 @@ def _averaged_scoring(eff) -> bool:
 #: transmit slots (:func:`slot_share`): it models stationary noise
 MIN_SLOT_SHARE = 0.5
 
+#: a sensor effect is adopted only when its held-out gain exceeds every
+#: acceptable scene-side candidate's by more than this share (:func:`_scene_first`)
+SCENE_MARGIN = 0.1
+
+
+def _scene_first(ranking, best, ok, scene_side):
+    """The best acceptable scene-side candidate in place of a sensor-side
+    ``best`` whose held-out gain it reaches to within :data:`SCENE_MARGIN`;
+    ``best`` otherwise.
+
+    Scene mismatch before sensor effects: the scene-side candidates only
+    approximate how a real scene differs from its mesh (object patterns,
+    points, shifts), while a per-channel sensor effect mimics much of that
+    difference (a per-Tx gain mends a scatterer the mesh puts at a slightly
+    wrong height on a radar whose Tx sit at two heights).  A sensor effect
+    that beats them narrowly has not shown that the sensor, not the scene,
+    is wrong; if it is really there it keeps its gain after the scene is
+    mended and is adopted in a later round."""
+    if scene_side.get(best.name, True):
+        return best
+    scene = [c for c in ranking if ok(c) and scene_side.get(c.name, True)
+             and c.gain >= (1.0 - SCENE_MARGIN) * best.gain]
+    return max(scene, key=lambda c: c.score) if scene else best
+
+
 #: two sensor effects explain "the same residual" when the simpler one's
 #: held-out gain is at least this share of the richer one's (:func:`_parsimonious`)
 PARSIMONY_SHARE = 0.9
@@ -372,6 +399,7 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
                          key=lambda c: c.score, reverse=True)
         best = next((c for c in ranking if ok(c)), None)
         if best is not None:
+            best = _scene_first(ranking, best, ok, scene_side)
             return ranking, _parsimonious(ranking, best, ok, scene_side)
     return ranking, None
 
