@@ -542,6 +542,32 @@ def test_15_ego_motion_recovered():
     _check_fit(m, ctx, meas, stat, noise, nll_tol=0.1, res_tol=0.1)
 
 
+def test_15b_ego_motion_leaves_a_mover_its_own_velocity():
+    """A walker beside a static scene seen from a moving radar: the mover's
+    velocity is relative to the radar, so ego motion (applied before movers
+    in the chain) must not move it again.  Both come back at their planted
+    values (truth: hand delay rates, ``direct_adc``)."""
+    radar = RadarConfig.awr1843(num_chirps=8)
+    F, period, v, u = 3, 2e-3, 0.73, -1.2
+    ctx = EffectContext(radar, num_frames=F, frame_period=period)
+    rng = np.random.default_rng(19)
+    stat, mov = _moving_frames(radar, F, period, v)
+    tau = point_target_delays(radar, 3.6 * unit_vectors(25.0))
+    rho = 2 * u / C
+    walker = np.stack([direct_adc(radar, 0.3, tau + rho * f * period, rho) for f in range(F)])
+    noise = _noise(mov.shape, rng)
+    meas = mov + walker + noise
+    m = EffectModel(ctx, meas, stat)
+    ego = m.add(EgoMotion())
+    m.fit()
+    walk = m.add(MovingScatterer())
+    m.fit()
+    assert abs(ego.values["velocity"][0] - v) < 2e-3
+    assert np.allclose(walk.values["velocity"], u, atol=0.02), walk.values["velocity"]
+    assert np.allclose(walk.values["range"], 3.6, atol=0.02)
+    _check_fit(m, ctx, meas, stat, noise, nll_tol=0.1, res_tol=0.1, drop_tol=0.2)
+
+
 def test_16_ego_motion_bad_arguments_raise_config_error():
     with pytest.raises(ConfigError, match="max_speed"):
         EgoMotion(max_speed=0.0)

@@ -88,6 +88,9 @@ class Effect:
     kind = "mean"
     stage = 1
     description = ""
+    #: place in the chain where it differs from ``stage`` (None: ``stage``);
+    #: effects are applied in ``(chain_order or stage)`` order
+    chain_order = None
     #: applying it commutes with averaging over chirp loops and its parameters
     #: mean the same on averaged data (a static, linear effect); the residual
     #: loop scores such candidates on chirp-averaged data
@@ -103,6 +106,11 @@ class Effect:
     #: the residual loop adopts it only while it explains at least this much
     #: (nats per held-out sample; :meth:`gain_floor`)
     min_gain_per_sample = 0.0
+
+    @property
+    def chain_key(self) -> float:
+        """Sort key of the effect in the chain (``chain_order``, else ``stage``)."""
+        return self.stage if self.chain_order is None else self.chain_order
 
     @property
     def scene_side(self) -> bool:

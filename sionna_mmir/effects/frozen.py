@@ -52,6 +52,7 @@ class FrozenPart(Effect):
             raise ValueError("FrozenPart: give exactly one of signal and variance")
         self.source = source
         self.name, self.kind, self.stage = source.name, source.kind, source.stage
+        self.chain_order = source.chain_key
         self.description = f"{source.name} at fixed values, averaged over chirps"
         self._signal = None if signal is None else ops.tensor(signal)
         self._variance = None if variance is None else ops.tensor(np.asarray(variance, float))

@@ -170,7 +170,7 @@ class EffectModel:
         """The base before the sensor chain (after scene-side effects), normalised units."""
         if self.basis_t is None or not any(c.effect.kind == "basis" for c in self.components):
             return self.b
-        order = sorted(range(len(self.components)), key=lambda i: self.components[i].effect.stage)
+        order = sorted(range(len(self.components)), key=lambda i: self.components[i].effect.chain_key)
         with dr.suspend_grad():
             return ops.to_numpy(self._base(self._tensors(), order))
 
@@ -289,7 +289,7 @@ class EffectModel:
         return out
 
     def _order(self):
-        return sorted(range(len(self.components)), key=lambda i: self.components[i].effect.stage)
+        return sorted(range(len(self.components)), key=lambda i: self.components[i].effect.chain_key)
 
     def frozen_base(self):
         """The base after the scene-side effects at their current values, evaluated

@@ -258,6 +258,9 @@ class EgoMotion(Effect):
     chirp_static = False
     kind = "mean"
     stage = 1
+    #: after the scene's static paths, before the movers (whose velocities are
+    #: relative to the radar already) and the RF chain
+    chain_order = 0.5
     description = "radar ego motion along boresight (slow-time Doppler of the static scene)"
 
     def __init__(self, max_speed: float = 5.0, angle_aware: bool = True,

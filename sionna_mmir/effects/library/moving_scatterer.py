@@ -240,6 +240,8 @@ class MovingScatterer(Effect):
     chirp_static = False
     kind = "mean"
     stage = 0
+    #: added after ego motion: its velocity is relative to the radar
+    chain_order = 0.75
     repeatable = True
     additive = True
     description = "moving point target (per-frame range, azimuth, velocity, amplitude)"
