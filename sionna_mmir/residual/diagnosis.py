@@ -202,19 +202,6 @@ def slot_share(gains: list, tests: list) -> float:
     return float(np.mean(per_slot > 0))
 
 
-def _trainable(cand: EffectModel, eff) -> list:
-    """Components fitted when scoring ``eff`` (the last one of ``cand``): the
-    candidate, and with an IF filter (a noise shaper) also the adopted
-    per-object scene components.  A filter's signal-side response is a
-    complex gain per beat frequency, which per-object amplitudes adopted
-    before it already carry; applied on top of them it would attenuate every
-    object twice and lose what its noise shape gains."""
-    new = len(cand.components) - 1
-    if not getattr(eff, "shapes_noise", False):
-        return [new]
-    return [i for i, c in enumerate(cand.components[:new]) if c.effect.kind == "basis"] + [new]
-
-
 def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
                     maxiter: int = 150, progress=None) -> list:
     """Held-out scores of ``candidates`` on top of ``model``, best first."""
@@ -225,7 +212,7 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
         for train, base, nll0, n_test in bases:
             cand = base.copy()
             cand.add(copy.deepcopy(eff), cells=train)      # fresh state per fold
-            cand.fit(trainable=_trainable(cand, eff), cells=train, maxiter=maxiter)
+            cand.fit(trainable=[len(cand.components) - 1], cells=train, maxiter=maxiter)
             gains.append(nll0 - cand.nll_profiled(~train) * n_test)
             if eff.kind == "variance":
                 cell_gains.append(base.nll_profiled(~train, True, by_slot=True)[1]
