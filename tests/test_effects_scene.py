@@ -444,6 +444,37 @@ def test_11b_retro_reflector_ghost_of_the_second_strongest_point():
     _check_fit(m, ctx, meas, model, noise)
 
 
+def test_11c_ghost_searches_the_scenes_flat_objects_first():
+    """With the scene's flat objects known (``SceneBasis.planes``), the ghost is
+    searched about them: a floor ghost is found although the free search's
+    distances (1.5-4 m) exclude the floor 0.9 m down (truth: the planted
+    floor and its double-bounce-only ghost, hand delays)."""
+    from sionna_mmir.effects.scene_basis import SceneBasis
+
+    radar = RadarConfig.awr1843(num_chirps=1)
+    rng = np.random.default_rng(12)
+    gamma = 0.6 * np.exp(-0.4j)
+    direct, full, noise = _ghost_capture(radar, gamma, rng, beta=0.0)
+    planes = [("floor", np.array([0.0, 0.0, -FLOOR_H]), np.array([0.0, 0.0, 1.0])),
+              ("wall", np.array([0.0, 2.5, 0.0]), np.array([0.0, -1.0, 0.0]))]
+    basis = SceneBasis(names=["target"], adc=direct, directions=np.array([[1.0, 0, 0]]),
+                       ranges=np.array([3.5]), offsets_tx=radar.tx_positions,
+                       offsets_rx=radar.rx_positions, rotation=np.eye(3),
+                       shares=np.array([1.0]), planes=planes)
+    for with_planes in (True, False):
+        basis.planes = planes if with_planes else []
+        ctx = EffectContext(radar, basis=basis)
+        m = EffectModel(ctx, full + noise)
+        eff = MultipathGhost(distances=(1.5, 4.0))
+        comp = m.add(eff)
+        m.fit()
+        s = eff.summary(comp.values, ctx)
+        found = abs(s["plane_point_m"][2] + FLOOR_H) < 0.005 and s["plane_normal"][2] > 0.999
+        assert found == with_planes, s
+        if with_planes:
+            assert s["gamma_abs"] == pytest.approx(abs(gamma), rel=0.05) and s["mixed"] < 0.05
+
+
 def test_12_ghost_bad_arguments_raise_config_error():
     with pytest.raises(ConfigError, match="plane"):
         MultipathGhost(plane=((0, 0, -1), (0, 0, 0)))

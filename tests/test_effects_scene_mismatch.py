@@ -198,3 +198,36 @@ def test_07_object_shift_recovers_a_lateral_offset_that_channel_gains_cannot():
     assert before > -30 and _resid_db(m) < before - 20, (before, _resid_db(m))
     np.testing.assert_allclose(s[1], [0.0, 0.02, 0.0], atol=1e-3)
     assert np.abs(s[[0, 2]]).max() < 1e-3
+
+
+def test_08_mesh_planes_are_the_large_flat_objects_in_the_radar_frame():
+    """A floor, a wall, a small plate and a trihedral seen from a radar 1 m up,
+    yawed 30 deg: the floor and the wall come back as planes in the radar
+    frame (hand-rotated), normals towards the radar; the plate (0.09 m^2) and
+    the trihedral (not flat) do not."""
+    from types import SimpleNamespace
+
+    from sionna_mmir.effects.scene_basis import mesh_planes
+
+    def quad(corners):
+        return SimpleNamespace(vertex_positions=np.array(corners, float),
+                               faces=np.array([[0, 1, 2], [0, 2, 3]]))
+
+    tri = SimpleNamespace(vertex_positions=np.array([[3, 0, 1], [3.2, 0, 1], [3, 0.2, 1],
+                                                     [3, 0, 1.2]], float),
+                          faces=np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3]]))
+    objects = {"floor": quad([[0, -2, 0], [4, -2, 0], [4, 2, 0], [0, 2, 0]]),
+               "wall": quad([[0, 2.5, 0], [4, 2.5, 0], [4, 2.5, 3], [0, 2.5, 3]]),
+               "plate": quad([[2, 0, 1], [2, 0.3, 1], [2, 0.3, 1.3], [2, 0, 1.3]]),
+               "corner": tri}
+    yaw = np.radians(30.0)
+    radar = RadarConfig.awr1843(position=np.array([0.0, 0.0, 1.0]),
+                                orientation=np.array([yaw, 0.0, 0.0]))
+    planes = {name: (q, n) for name, q, n in mesh_planes(objects, radar)}
+    assert sorted(planes) == ["floor", "wall"]
+    q, n = planes["floor"]
+    assert n == pytest.approx([0, 0, 1], abs=1e-9) and q[2] == pytest.approx(-1.0, abs=1e-9)
+    q, n = planes["wall"]
+    # the wall's normal -y (scene) seen in a frame yawed by +30 deg: -(sin 30, cos 30, 0)
+    assert n == pytest.approx([-np.sin(yaw), -np.cos(yaw), 0], abs=1e-9)
+    assert np.dot(q, n) == pytest.approx(-2.5, abs=1e-9)       # 2.5 m from the radar

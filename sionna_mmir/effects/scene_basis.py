@@ -67,6 +67,9 @@ class SceneBasis:
     offsets_rx: np.ndarray
     rotation: np.ndarray
     shares: np.ndarray
+    #: large flat objects of the scene as ``[(name, point [3], unit normal [3])]``
+    #: in the radar frame (:func:`mesh_planes`), e.g. for multipath ghosts
+    planes: list = dataclasses.field(default_factory=list)
 
     @property
     def num_components(self) -> int:
@@ -185,3 +188,46 @@ def _choose(parts, max_objects, min_share):
     total = max(float(energy.sum()), 1e-300)
     keep = [int(i) for i in order if energy[i] >= min_share * total][:max(int(max_objects), 1)]
     return [parts[i] for i in keep], [parts[i] for i in range(len(parts)) if i not in keep]
+
+
+def mesh_planes(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> list:
+    """Large flat objects of a scene as planes in the radar frame.
+
+    An object is a plane when every vertex lies within ``tol`` [m] of the
+    least-squares plane through its vertices (smallest singular vector) and
+    its triangles cover at least ``min_area`` [m^2] (floors, walls, ceilings;
+    not a corner reflector or a cabinet).
+
+    Parameters
+    ----------
+    objects : dict
+        Name -> object with ``vertex_positions [V, 3]`` and ``faces [M, 3]``
+        (scene frame), e.g. :attr:`RadarScene.objects`.
+    radar : RadarConfig
+        Its ``position`` and ``orientation`` place the radar frame.
+
+    Returns
+    -------
+    list of (str, numpy.ndarray, numpy.ndarray)
+        ``(name, point [3], unit normal [3])``, radar frame, the normal
+        pointing to the radar's side.
+    """
+    from ..radar.config import rotation_matrix
+
+    rot = rotation_matrix(radar.orientation)
+    out = []
+    for name, obj in objects.items():
+        v = np.asarray(obj.vertex_positions, float).reshape(-1, 3)
+        f = np.asarray(obj.faces, int).reshape(-1, 3)
+        if len(v) < 3 or not len(f):
+            continue
+        v = (v - np.asarray(radar.position, float)) @ rot             # radar frame
+        c = v.mean(axis=0)
+        n = np.linalg.svd(v - c, full_matrices=False)[2][-1]
+        area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]),
+                                    axis=1).sum()
+        if np.abs((v - c) @ n).max() > tol or area < min_area:
+            continue
+        n = -n if np.dot(c, n) > 0 else n                              # towards the radar
+        out.append((str(name), c, n))
+    return out

@@ -248,10 +248,22 @@ class MultipathGhost(Effect):
         return [(r * unit_vectors(az, el), a) for r, az, el, a in found]
 
     def _candidates(self, ctx, p, step):
-        """``[(q, n, offsets)]`` to score: the given plane +- max_offset, or the families."""
+        """``[(q, n, offsets)]`` to score: the given plane +- max_offset; else the
+        scene's flat objects (:attr:`~..scene_basis.SceneBasis.planes`) +-
+        max_offset, those the target lies in front of; else the families.
+
+        The mesh's planes come first because range alone cannot tell the
+        mixed paths via one plane from the double bounce via a nearer one (a
+        radar with little elevation aperture sees both as one range)."""
+        offs = np.arange(-self.max_offset, self.max_offset + 1e-12, step)
         if self.plane is not None:
             q, n = self.plane
-            return [(q, n, np.arange(-self.max_offset, self.max_offset + 1e-12, step))]
+            return [(q, n, offs)]
+        planes = getattr(ctx.basis, "planes", None) or []
+        mesh = [(np.asarray(q, float), np.asarray(n, float), offs) for _, q, n in planes
+                if np.dot(p - np.asarray(q, float), n) > 0.05]
+        if mesh:
+            return mesh
         out = []
         lo, hi = self.distances
         for _, n in FAMILIES:
