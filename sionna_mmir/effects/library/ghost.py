@@ -23,7 +23,10 @@ reflection coefficient (spreading-loss differences are folded into it).
 the double bounce, which it sees monostatically from the image radar, and
 little of the mixed paths).
 
-The target ``p`` is one of the model's strongest points (range-azimuth
+The surface is searched among the scene's large flat objects (floors,
+walls: :attr:`~sionna_mmir.effects.scene_basis.SceneBasis.planes`), or
+without a scene among floors, ceilings and side walls at a range of
+distances.  The target ``p`` is one of the model's strongest points (range-azimuth
 peaks of the model ADC, refined, :func:`~.scatterer.strongest_points`): the
 one whose ghost removes the most residual energy, found once in
 :meth:`MultipathGhost.param_specs`.  Its complex amplitude ``a`` is the LS
@@ -197,10 +200,12 @@ class MultipathGhost(Effect):
     plane : tuple, optional
         ``(point [3], normal [3])`` [m] in the radar frame, e.g.
         ``((0, 0, -h), (0, 0, 1))`` for a floor ``h`` below; None:
-        search floors, ceilings and side walls in init
+        search the scene's flat objects (``ctx.basis.planes``,
+        +- ``max_offset``) in init, or without any, floors, ceilings and
+        side walls at ``distances``
     distances : tuple, optional
         ``(min, max)`` plane distances from the radar searched
-        when ``plane`` is None [m]
+        when ``plane`` is None and the scene has no flat object [m]
     max_offset : float, optional
         bound of the plane offset refinement [m]
     min_range : float, optional
