@@ -356,3 +356,33 @@ def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
     pool[1].gain_floor = lambda ctx: 1.0             # the scatterer is not acceptable
     _, best = _rank_round(Tiers(cases[0][0]), pool, 1.0, 10, None, 0.0, set())
     assert best.name == "channel_gain"
+
+
+def test_15_a_noise_model_is_scored_on_the_chirp_to_chirp_scatter():
+    """Phase noise (a stationary variance model) is scored on the residual's
+    chirp-to-chirp deviation: a static misfit of the scene (a target 25 %
+    stronger and 4 mm farther than the model has it) gains it nothing, while
+    real LO phase noise on every chirp does (truth: the planted misfit and
+    phase-noise draws).  Scored on the whole residual the static misfit
+    gained it ~14 600 nats."""
+    from test_effects_sensor import _phase_noise_draws
+
+    from sionna_mmir.effects.library.phase_noise import PhaseNoise
+    from sionna_mmir.residual.diagnosis import rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=8, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    folds = cv_folds(ctx.shape[:4], 3)
+
+    def gain(meas):
+        m = EffectModel(ctx, meas, clean)
+        m.fit(trainable=[])
+        (c,) = rank_candidates(m, [PhaseNoise()], folds)
+        return c.gain
+
+    true = synthesize_adc(radar, np.array([1.25, 0.4j]), 2 * np.array([1.804, 3.7]) / C)[None]
+    assert gain(true + _noise(clean.shape, 3e-3, 21)) < 0
+    F, T, _, Cn, N = ctx.shape
+    phi = _phase_noise_draws(np.random.default_rng(22), (F, T, 1, Cn), N, -35.0, 2.0)
+    assert gain(clean * np.exp(1j * phi) + _noise(clean.shape, 3e-3, 21)) > 100

@@ -405,7 +405,8 @@ class EffectModel:
         with dr.suspend_grad():
             return ops.item(self.loss(self._tensors(), mask, n))
 
-    def nll_profiled(self, cells=None, per_cell: bool = False, by_slot: bool = False):
+    def nll_profiled(self, cells=None, per_cell: bool = False, by_slot: bool = False,
+                     deviation: bool = False):
         """Mean NLL per complex sample over ``cells`` with the white floor
         ``sigma^2`` re-estimated on those cells (the NLL minimised over
         ``sigma^2`` alone, every other parameter as is).
@@ -424,15 +425,24 @@ class EffectModel:
         the floor is profiled per transmit slot (frame, Tx, chirp: in TDM-MIMO
         every Tx fires in its own slot) instead, so a disturbance confined to
         a few slots raises only their floor.
+
+        With ``deviation`` (two or more chirp loops) the residual is replaced
+        by its deviation from its own mean over the chirp loops, scaled by
+        ``C / (C - 1)`` (the expected power of a deviation of independent
+        chirps): the chirp-to-chirp scatter a stationary noise model must
+        predict, without the chirp-mean misfit that is the mean model's to
+        explain.  The cells must hold every chirp loop of their channels.
         """
         x, v = self.mean_variance_numpy()
         cells = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
         if cells.shape != self.ctx.shape[:4] or not cells.any():
             raise InputValueError(f"mask: shape {cells.shape} != cells {self.ctx.shape[:4]} "
                                   "or selects no cells")
-        Y = self.Y_numpy[cells]
-        X = np.fft.fft(x, axis=-1, norm="ortho")[cells]
-        r2 = np.abs(Y - X) ** 2
+        r = self.Y_numpy - np.fft.fft(x, axis=-1, norm="ortho")
+        C = self.ctx.shape[3]
+        if deviation and C > 1:
+            r = (r - r.mean(axis=3, keepdims=True)) * np.sqrt(C / (C - 1))
+        r2 = np.abs(r[cells]) ** 2
         s = np.broadcast_to(self.white_shape_numpy(), v.shape)
         extra = (v - float(np.exp(self.nuisance.values["log_noise"][0])) * s)[cells]
         s = s[cells]

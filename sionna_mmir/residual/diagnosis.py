@@ -31,7 +31,10 @@ floor) can raise the likelihood of *any* structured residual by widening
 the noise where the residual is large; a mean effect explains it.  Each
 round therefore ranks the mean-kind candidates first and adopts the best
 one when its score is positive; the variance-kind candidates are scored
-(and may be adopted) only in a round where no mean candidate helps, and
+(and may be adopted) only in a round where no mean candidate helps,
+scored with several chirp loops on the residual's chirp-to-chirp deviation
+alone (the scatter a stationary noise model predicts; the chirp-mean misfit
+is the mean model's to explain), and
 only when they help in most transmit slots (frame, Tx, chirp; in TDM-MIMO
 every Tx fires in its own slot) (:data:`MIN_SLOT_SHARE`):
 a stationary noise model that gains in a few chirps only is absorbing a
@@ -209,11 +212,14 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
     out = []
     for eff in candidates:
         gains, n_tot, cell_gains = [], 0.0, []
+        dev = eff.kind == "variance" and model.ctx.shape[3] > 1
         for train, base, nll0, n_test in bases:
             cand = base.copy()
             cand.add(copy.deepcopy(eff), cells=train)      # fresh state per fold
             cand.fit(trainable=[len(cand.components) - 1], cells=train, maxiter=maxiter)
-            gains.append(nll0 - cand.nll_profiled(~train) * n_test)
+            if dev:
+                nll0 = base.nll_profiled(~train, deviation=True) * n_test
+            gains.append(nll0 - cand.nll_profiled(~train, deviation=dev) * n_test)
             if eff.kind == "variance":
                 cell_gains.append(base.nll_profiled(~train, True, by_slot=True)[1]
                                   - cand.nll_profiled(~train, True, by_slot=True)[1])
