@@ -386,3 +386,29 @@ def test_15_a_noise_model_is_scored_on_the_chirp_to_chirp_scatter():
     F, T, _, Cn, N = ctx.shape
     phi = _phase_noise_draws(np.random.default_rng(22), (F, T, 1, Cn), N, -35.0, 2.0)
     assert gain(clean * np.exp(1j * phi) + _noise(clean.shape, 3e-3, 21)) > 100
+
+
+def test_16_ego_motion_is_scored_beside_a_mover_it_makes_redundant():
+    """A static scene seen from a radar moving at 0.73 m/s: a mover adopted
+    first takes the strongest target at its line-of-sight speed.  Ego motion
+    scored next starts from the model without that mover and may take the
+    object back from it, so it gains more than a second mover does (truth:
+    hand delay rates, ``direct_adc``)."""
+    from test_effects_scene import _moving_frames
+
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.residual.diagnosis import rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=8)
+    F, period, v = 2, 2e-3, 0.73
+    ctx = EffectContext(radar, num_frames=F, frame_period=period)
+    stat, mov = _moving_frames(radar, F, period, v)
+    m = EffectModel(ctx, mov + _noise(mov.shape, 0.01, 23), stat)
+    mover = m.add(MovingScatterer())
+    m.fit()
+    assert np.allclose(mover.values["range"], 2.0, atol=0.05)
+    assert np.allclose(mover.values["velocity"], -v, atol=0.1)
+    ranked = {c.name: c.gain for c in rank_candidates(m, [EgoMotion(), MovingScatterer()],
+                                                      cv_folds(ctx.shape[:4], 3))}
+    assert ranked["ego_motion"] > ranked["moving_scatterer"] > 0, ranked

@@ -91,6 +91,10 @@ class Effect:
     #: place in the chain where it differs from ``stage`` (None: ``stage``);
     #: effects are applied in ``(chain_order or stage)`` order
     chain_order = None
+    #: names of effects this one may make redundant: its data-driven start
+    #: sees the model without them, and the residual loop refits them beside
+    #: it when it is scored
+    may_replace = ()
     #: applying it commutes with averaging over chirp loops and its parameters
     #: mean the same on averaged data (a static, linear effect); the residual
     #: loop scores such candidates on chirp-averaged data
@@ -106,6 +110,13 @@ class Effect:
     #: the residual loop adopts it only while it explains at least this much
     #: (nats per held-out sample; :meth:`gain_floor`)
     min_gain_per_sample = 0.0
+
+    def silenced(self, values: dict):
+        """``values`` with this effect's contribution switched off (an additive
+        effect's amplitude at zero), or None where that has no meaning; the
+        start from which an effect that may replace it is scored
+        (:attr:`may_replace`)."""
+        return None
 
     @property
     def chain_key(self) -> float:

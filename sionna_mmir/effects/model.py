@@ -120,6 +120,8 @@ class EffectModel:
         model, _ = self.mean_variance_numpy()
         full = model
         residual = self.y - model
+        if effect.may_replace:
+            model = self._without(effect.may_replace)
         keep = None if cells is None else np.asarray(cells, bool)[..., None]
         if keep is not None:
             model, residual = model * keep, residual * keep
@@ -133,6 +135,17 @@ class EffectModel:
                          values={k: s.init.copy() for k, s in specs.items()})
         self.components.append(comp)
         return comp
+
+    def _without(self, names) -> np.ndarray:
+        """The current mean model with the components named ``names`` left out."""
+        kept = [c for c in self.components if c.effect.name not in set(names)]
+        if len(kept) == len(self.components):
+            return self.mean_variance_numpy()[0]
+        every, self.components = self.components, kept
+        try:
+            return self.mean_variance_numpy()[0]
+        finally:
+            self.components = every
 
     def channel_response(self, keep=None, current=None) -> np.ndarray:
         """Per-channel complex response of the current sensor chain, ``[1, T, R, 1, 1]``.

@@ -205,6 +205,28 @@ def slot_share(gains: list, tests: list) -> float:
     return float(np.mean(per_slot > 0))
 
 
+def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
+    """Fit the candidate ``eff`` (the last component of ``cand``) on ``train``.
+
+    An effect that may make adopted ones redundant (``eff.may_replace``, e.g.
+    ego motion beside movers: a mover adopted first may be a static object
+    seen from the moving radar, and ego motion scored with it held fixed
+    would show that object twice) is fitted alone with those silenced
+    (:meth:`~sionna_mmir.effects.base.Effect.silenced`), then with every
+    component, so the object's amplitude can move back from the mover to
+    the scene."""
+    new = len(cand.components) - 1
+    names = set(eff.may_replace)
+    replaced = [c for c in cand.components[:new] if c.effect.name in names]
+    if not replaced:
+        cand.fit(trainable=[new], cells=train, maxiter=maxiter)
+        return
+    for c in replaced:
+        c.values = c.effect.silenced(c.values) or c.values
+    cand.fit(trainable=[new], cells=train, maxiter=maxiter)
+    cand.fit(cells=train, maxiter=maxiter)
+
+
 def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
                     maxiter: int = 150, progress=None) -> list:
     """Held-out scores of ``candidates`` on top of ``model``, best first."""
@@ -216,7 +238,7 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
         for train, base, nll0, n_test in bases:
             cand = base.copy()
             cand.add(copy.deepcopy(eff), cells=train)      # fresh state per fold
-            cand.fit(trainable=[len(cand.components) - 1], cells=train, maxiter=maxiter)
+            _fit_candidate(cand, eff, train, maxiter)
             if dev:
                 nll0 = base.nll_profiled(~train, deviation=True) * n_test
             gains.append(nll0 - cand.nll_profiled(~train, deviation=dev) * n_test)

@@ -261,6 +261,9 @@ class EgoMotion(Effect):
     #: after the scene's static paths, before the movers (whose velocities are
     #: relative to the radar already) and the RF chain
     chain_order = 0.5
+    #: a mover adopted before it may be a static object seen from the moving
+    #: radar: left out of its start, refitted beside it when it is scored
+    may_replace = ("moving_scatterer",)
     description = "radar ego motion along boresight (slow-time Doppler of the static scene)"
 
     def __init__(self, max_speed: float = 5.0, angle_aware: bool = True,

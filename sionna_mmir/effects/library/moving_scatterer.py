@@ -303,6 +303,10 @@ class MovingScatterer(Effect):
         amp = (ops.column(p["amp"], 0, lead), ops.column(p["amp"], 1, lead))
         return ops.cadd(x, ops.cmul(ops.cis(phase), amp))
 
+    def silenced(self, values):
+        """The mover with zero amplitude (its track kept)."""
+        return {**values, "amp": np.zeros_like(np.asarray(values["amp"]))}
+
     def summary(self, p, ctx):
         r = np.asarray(p["range"], np.float64)
         az = np.asarray(p["azimuth"], np.float64)
