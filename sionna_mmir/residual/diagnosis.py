@@ -43,7 +43,9 @@ unexplained instead.  Of two sensor effects that explain nearly the same,
 the one with fewer parameters is adopted while the richer one's surplus is
 scene misfit a scene-side candidate could take (:func:`_parsimonious`), and
 a sensor effect must beat every scene-side candidate by a margin
-(:func:`_scene_first`).
+(:func:`_scene_first`).  An effect that may make adopted ones redundant
+(ego motion beside movers) is scored from a start without them
+(:func:`_fit_candidate`).
 The adopted effect is then refitted jointly with all adopted effects on all
 cells, and the next round starts.  It stops when nothing helps, and reports
 what stays unexplained.
