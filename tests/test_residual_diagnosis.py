@@ -337,6 +337,9 @@ def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
             return [CandidateScore(e.name, n, g, g / 1e4, g - n, [g])
                     for e in group for (name, (g, n)) in self.gains.items() if name == e.name]
 
+        def on_one_scale(self, ranking, best, *args):
+            return ranking, best
+
     pool = [ChannelGain(), MissingScatterer(), DelayOffset(), FrequencyOffset(), Coupling()]
     for c in pool:
         c.gain_floor = lambda ctx: 0.0
@@ -412,3 +415,31 @@ def test_16_ego_motion_is_scored_beside_a_mover_it_makes_redundant():
     ranked = {c.name: c.gain for c in rank_candidates(m, [EgoMotion(), MovingScatterer()],
                                                       cv_folds(ctx.shape[:4], 3))}
     assert ranked["ego_motion"] > ranked["moving_scatterer"] > 0, ranked
+
+
+def test_17_candidates_of_the_two_tiers_are_compared_on_the_full_data():
+    """A static point the scene lacks, 16 chirp loops: scored on the chirp
+    average its held-out gain is some nats; a candidate scored on every chirp
+    (here a stand-in IF filter credited with twice that) would outrank it on
+    the mixed scale.  ``_Tiers.on_one_scale`` scores the point again on the
+    full data, where it gains more than the stand-in, and it is chosen."""
+    import dataclasses as dc
+
+    from sionna_mmir.effects.library.if_filter import IFFilter
+    from sionna_mmir.residual.diagnosis import _Tiers, rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    point = synthesize_adc(radar, np.array([0.3]), np.array([2 * 2.6 / C]))[None]
+    m = EffectModel(ctx, clean + point + _noise(clean.shape, 0.03, 24), clean)
+    m.fit(trainable=[])
+    tiers = _Tiers(m, 3, 0, "auto")
+    pool = [IFFilter(), MissingScatterer()]
+    (avg,) = rank_candidates(tiers.avg, [pool[1]], tiers.avg_folds)
+    stand_in = dc.replace(avg, name="if_filter", n_params=3, gain=2 * avg.gain,
+                          score=2 * avg.gain - 3)
+    ranking, best = tiers.on_one_scale([stand_in, avg], stand_in, pool, lambda c: c.score > 0,
+                                       1.0, 150, None)
+    assert best.name == "missing_scatterer" and best.gain > stand_in.gain, ranking
+    assert best.gain_per_sample == avg.gain_per_sample      # its floor: on the average

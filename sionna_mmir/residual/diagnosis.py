@@ -340,6 +340,28 @@ class _Tiers:
             out += rank_candidates(self.model, slow, self.folds, penalty, maxiter, progress)
         return sorted(out, key=lambda c: c.score, reverse=True)
 
+    def on_one_scale(self, ranking, best, pool, ok, penalty, maxiter, progress):
+        """``(ranking, best)`` with scores comparable across the tiers.
+
+        A held-out gain on every chirp is not on the chirp average's scale (a
+        misfit well above the noise gains up to ``C`` times more nats on the
+        full data).  When the best acceptable candidate was scored on the full
+        data and an acceptable chirp-averaged one ranks below it, that one is
+        scored again on the full data and the two are compared there."""
+        effects = {c.name: c for c in pool}
+        if self.avg is self.model or _averaged_scoring(effects[best.name]):
+            return ranking, best
+        rival = next((c for c in ranking if ok(c) and _averaged_scoring(effects[c.name])), None)
+        if rival is None:
+            return ranking, best
+        (again,) = rank_candidates(self.model, [effects[rival.name]], self.folds, penalty,
+                                   maxiter, progress)
+        # its gain floor stays judged on the chirp average, where it is set
+        again = dataclasses.replace(again, gain_per_sample=rival.gain_per_sample)
+        ranking = sorted([again if c is rival else c for c in ranking],
+                         key=lambda c: c.score, reverse=True)
+        return ranking, next((c for c in ranking if ok(c)), None)
+
 
 def _averaged_scoring(eff) -> bool:
     """Whether ``eff`` is scored and fitted on chirp-averaged data: a
@@ -428,6 +450,8 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened):
         ranking = sorted(ranking + tiers.rank(group, penalty, maxiter, progress),
                          key=lambda c: c.score, reverse=True)
         best = next((c for c in ranking if ok(c)), None)
+        if best is not None:
+            ranking, best = tiers.on_one_scale(ranking, best, pool, ok, penalty, maxiter, progress)
         if best is not None:
             best = _scene_first(ranking, best, ok, scene_side)
             return ranking, _parsimonious(ranking, best, ok, scene_side)
