@@ -183,9 +183,8 @@ class EffectModel:
         """The base before the sensor chain (after scene-side effects), normalised units."""
         if self.basis_t is None or not any(c.effect.kind == "basis" for c in self.components):
             return self.b
-        order = sorted(range(len(self.components)), key=lambda i: self.components[i].effect.chain_key)
         with dr.suspend_grad():
-            return ops.to_numpy(self._base(self._tensors(), order))
+            return ops.to_numpy(self._base(self._tensors(), self._order()))
 
     def chirp_averaged(self, freeze: bool = False) -> "EffectModel":
         """This model on the data averaged over chirp loops (``C = 1``).
@@ -302,7 +301,9 @@ class EffectModel:
         return out
 
     def _order(self):
-        return sorted(range(len(self.components)), key=lambda i: self.components[i].effect.chain_key)
+        """Component indices in chain order (:attr:`~.base.Effect.chain_key`)."""
+        return sorted(range(len(self.components)),
+                      key=lambda i: self.components[i].effect.chain_key)
 
     def frozen_base(self):
         """The base after the scene-side effects at their current values, evaluated
