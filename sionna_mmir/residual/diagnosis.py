@@ -233,16 +233,19 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
                     maxiter: int = 150, progress=None) -> list:
     """Held-out scores of ``candidates`` on top of ``model``, best first."""
     bases = _fold_bases(model, folds, maxiter)
+    dev0 = {}                       # per fold: the base's score on the chirp deviation
     out = []
     for eff in candidates:
         gains, n_tot, cell_gains = [], 0.0, []
         dev = eff.kind == "variance" and model.ctx.shape[3] > 1
-        for train, base, nll0, n_test in bases:
+        for k, (train, base, nll0, n_test) in enumerate(bases):
             cand = base.copy()
             cand.add(copy.deepcopy(eff), cells=train)      # fresh state per fold
             _fit_candidate(cand, eff, train, maxiter)
             if dev:
-                nll0 = base.nll_profiled(~train, deviation=True) * n_test
+                if k not in dev0:
+                    dev0[k] = base.nll_profiled(~train, deviation=True) * n_test
+                nll0 = dev0[k]
             gains.append(nll0 - cand.nll_profiled(~train, deviation=dev) * n_test)
             if eff.kind == "variance":
                 cell_gains.append(base.nll_profiled(~train, True, by_slot=True)[1]
