@@ -341,7 +341,7 @@ def test_13_fit_out_is_an_existing_file(tmp_path, inputs, capsys):
 
 # ----------------------------------------------------------------- 14-16: silently accepted
 def test_14_residual_penalty_nan(tmp_path, inputs, capsys):
-    for value in ("nan", "inf", "-1"):
+    for value in ("nan", "inf", "-1", "aic", ""):
         _refused(capsys, ["residual", inputs["multi"], "--model", "static", f"--penalty={value}",
                           "--out", tmp_path / "rep"], "--penalty")
     _refused(capsys, ["loop", inputs["cap"], inputs["wall"], "--penalty", "nan",

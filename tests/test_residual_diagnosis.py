@@ -443,3 +443,29 @@ def test_17_candidates_of_the_two_tiers_are_compared_on_the_full_data():
                                        1.0, 150, None)
     assert best.name == "missing_scatterer" and best.gain > stand_in.gain, ranking
     assert best.gain_per_sample == avg.gain_per_sample      # its floor: on the average
+
+
+def test_18_the_default_penalty_grows_with_the_held_out_samples():
+    """The score charges ``ln(n) / 2`` nats per parameter (the BIC's weight; n
+    the held-out complex samples the candidate was scored on), a fixed number
+    when one is given; anything else is refused.  Truth: the closed form."""
+    from sionna_mmir.residual.diagnosis import check_penalty, penalty_per_param, rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    gains = np.exp(1j * np.linspace(0, 1, radar.num_rx))[None, None, :, None, None]
+    m = EffectModel(ctx, clean * gains + _noise(clean.shape, 0.02, 31), clean)
+    m.fit(trainable=[])
+    folds = cv_folds(ctx.shape[:4], 3)
+    (bic,) = rank_candidates(m, [ChannelGain()], folds)
+    (one,) = rank_candidates(m, [ChannelGain()], folds, penalty=1.0)
+    n = bic.gain / bic.gain_per_sample
+    assert n == pytest.approx(clean.size)
+    assert bic.score == pytest.approx(bic.gain - 0.5 * np.log(n) * bic.n_params)
+    assert one.score == pytest.approx(one.gain - one.n_params)
+    assert penalty_per_param("bic", np.e ** 8) == pytest.approx(4.0)
+    assert check_penalty("BIC") == "bic" and check_penalty("2.5") == 2.5
+    for bad in ("aic", "nan", -1.0, float("inf"), True):
+        with pytest.raises(ConfigError, match="penalty"):
+            check_penalty(bad)

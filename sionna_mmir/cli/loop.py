@@ -35,7 +35,9 @@ def add_parser(sub) -> None:
                    help="comma-separated candidate effects (default: the whole library and "
                         "the scene-side refinements)")
     p.add_argument("--folds", type=int, default=3, help="cross-validation folds")
-    p.add_argument("--penalty", type=float, default=1.0, help="nats per parameter")
+    p.add_argument("--penalty", default="bic",
+                   help="nats charged per parameter of a candidate: a number, or 'bic' for "
+                        "ln(n)/2 with n the held-out samples (default)")
     p.add_argument("--resume", action="store_true", help="continue a killed run")
     add_sensor_profile(p)
     p.set_defaults(run=run)

@@ -34,7 +34,9 @@ def add_parser(sub) -> None:
                    help="cross-validation hold-out unit: whole virtual channels (auto: when "
                         "the array allows) or single (frame, Tx, Rx, chirp) cells")
     p.add_argument("--max-rounds", type=int, default=6, help="most adoptions")
-    p.add_argument("--penalty", type=float, default=1.0, help="nats per parameter")
+    p.add_argument("--penalty", default="bic",
+                   help="nats charged per parameter of a candidate: a number, or 'bic' for "
+                        "ln(n)/2 with n the held-out samples (default)")
     p.add_argument("--seed", type=int, default=0, help="fold seed")
     p.set_defaults(run=run)
 
@@ -63,14 +65,14 @@ def run(args) -> int:
     from ..effects.library import candidate_effects
     from ..residual import diagnose
     from ..residual.base_model import base_model
+    from ..residual.diagnosis import check_penalty
     from ..residual.report import write_report
 
     if args.folds < 2:
         raise ConfigError(f"--folds must be >= 2, got {args.folds}")
     if args.max_rounds < 0:
         raise ConfigError(f"--max-rounds must be >= 0, got {args.max_rounds}")
-    if not np.isfinite(args.penalty) or args.penalty < 0:
-        raise ConfigError(f"--penalty must be a finite number >= 0, got {args.penalty}")
+    check_penalty(args.penalty)
     cap = load_capture(args.capture, calib_dir=args.calib_dir)
     frames = frame_slice(args.frames, cap.frames.shape[0])
     y = cap.frames[frames]

@@ -21,12 +21,12 @@ class Diagnosis:
     candidates : list of Effect, optional
         Candidate effects (default :func:`~.loop.default_candidates`).
     folds, penalty, seed
-        Cross-validation folds, nats per parameter, fold seed.
+        Cross-validation folds, nats per parameter (``"bic"``: ``ln(n) / 2``), fold seed.
     progress : callable, optional
         ``progress(event, name)`` (``"scored"`` / ``"adopted"``).
     """
 
-    def __init__(self, model, candidates=None, folds: int = 3, penalty: float = 1.0,
+    def __init__(self, model, candidates=None, folds: int = 3, penalty="bic",
                  seed: int = 0, progress=None):
         from .loop import default_candidates
 

@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError, InputValueError
+from ..residual.diagnosis import check_penalty
 from .radar_model import RadarModel, loop_solver_options
 
 #: format tag of the loop's checkpoint file
@@ -88,6 +89,9 @@ class LoopRequest:
     sensor_profile : str, optional
         A unit's profile file, applied frozen to the forward model (the RA fit
         and the sensor chain; :mod:`sionna_mmir.effects.profile`).
+    folds, penalty
+        Cross-validation folds; nats per candidate parameter (``"bic"``:
+        ``ln(n) / 2``, :func:`~sionna_mmir.residual.diagnosis.penalty_per_param`).
     """
 
     capture: str
@@ -106,7 +110,7 @@ class LoopRequest:
     solver: object = dataclasses.field(default_factory=loop_solver_options)
     effects: object = None
     folds: int = 3
-    penalty: float = 1.0
+    penalty: object = "bic"
     max_objects: int = 8
     resume: bool = False
     overwrite: bool = False
@@ -128,8 +132,7 @@ def check_request(req: LoopRequest) -> None:
         raise ConfigError(f"--fit-iterations must be >= 0, got {req.fit_iterations}")
     if req.folds < 2:
         raise ConfigError(f"--folds must be >= 2, got {req.folds}")
-    if not np.isfinite(req.penalty) or req.penalty < 0:
-        raise ConfigError(f"--penalty must be a finite number >= 0, got {req.penalty}")
+    check_penalty(req.penalty)
     if req.effects is not None:
         default_candidates(req.effects)               # unknown or empty lists, up front
 

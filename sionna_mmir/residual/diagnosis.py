@@ -16,7 +16,15 @@ credited on every held-out cell through it.
 
 Its held-out gain is ``sum over folds (NLL_0 - NLL_1)`` in nats (total over
 held-out complex samples); its score subtracts ``penalty`` nats per real
-parameter (AIC-like, default 1).
+parameter: by default ``ln(n) / 2`` with ``n`` the held-out complex samples
+the candidate was scored on (the BIC's weight, :func:`penalty_per_param`), or
+a fixed number.  The held-out gain alone already charges a candidate for
+fitting noise, but not for fitting the structured misfit that every real
+scene leaves (clutter the mesh lacks): a 28-number per-channel delay bends to
+that misfit and predicts held-out channels by a few nats per parameter, on a
+clean capture as on any other, while a sensor effect that is really there
+gains hundreds to thousands of nats per parameter.  A penalty that grows with
+the data keeps those few nats from adding up to an adoption.
 
 Folds hold out whole virtual channels (a Tx-Rx pair, all its frames and
 chirps), keeping every Tx and every Rx in every training set, so an effect
@@ -71,7 +79,7 @@ class CandidateScore:
     n_params: int
     gain: float                 # total held-out NLL reduction [nats]
     gain_per_sample: float      # per held-out complex sample [nats]
-    score: float                # gain - penalty * n_params
+    score: float                # gain - penalty per parameter * n_params
     fold_gains: list
     #: share of the transmit slots (frame, Tx, chirp) whose held-out NLL the candidate lowers
     slot_share: float = 1.0
@@ -229,7 +237,36 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     cand.fit(cells=train, maxiter=maxiter)
 
 
-def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
+#: the default penalty: the BIC's ``ln(n) / 2`` nats per real parameter
+BIC = "bic"
+
+
+def check_penalty(penalty):
+    """``penalty`` validated: ``"bic"`` or a finite number of nats >= 0."""
+    if isinstance(penalty, str):
+        if penalty.strip().lower() == BIC:
+            return BIC
+        try:
+            penalty = float(penalty)
+        except ValueError:
+            raise ConfigError(f"--penalty must be 'bic' or a number of nats >= 0, "
+                              f"got {penalty!r}") from None
+    if isinstance(penalty, bool) or not isinstance(penalty, (int, float, np.floating)) \
+            or not np.isfinite(penalty) or penalty < 0:
+        raise ConfigError(f"--penalty must be 'bic' or a finite number of nats >= 0, "
+                          f"got {penalty!r}")
+    return float(penalty)
+
+
+def penalty_per_param(penalty, n_samples: float) -> float:
+    """Nats charged per real parameter of a candidate scored on ``n_samples``
+    held-out complex samples: ``ln(n) / 2`` for ``"bic"``, else ``penalty``."""
+    if penalty == BIC:
+        return 0.5 * float(np.log(max(n_samples, 1.0)))
+    return float(penalty)
+
+
+def rank_candidates(model: EffectModel, candidates, folds, penalty=BIC,
                     maxiter: int = 150, progress=None) -> list:
     """Held-out scores of ``candidates`` on top of ``model``, best first."""
     bases = _fold_bases(model, folds, maxiter)
@@ -255,7 +292,7 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty: float = 1.0,
         gain = float(np.sum(gains))
         out.append(CandidateScore(name=eff.name, n_params=int(n_params), gain=gain,
                                   gain_per_sample=gain / max(n_tot, 1.0),
-                                  score=gain - penalty * n_params,
+                                  score=gain - penalty_per_param(penalty, n_tot) * n_params,
                                   fold_gains=[float(g) for g in gains],
                                   slot_share=(slot_share(cell_gains, [~b[0] for b in bases])
                                               if cell_gains else 1.0)))
@@ -519,14 +556,14 @@ class DiagnosisRun:
         or ``"adopted"``.
     """
 
-    def __init__(self, model: EffectModel, candidates, folds: int = 3, penalty: float = 1.0,
+    def __init__(self, model: EffectModel, candidates, folds: int = 3, penalty=BIC,
                  min_gain: float = 1e-3, seed: int = 0, maxiter: int = 150, groups: str = "auto",
                  progress=None):
         from .screening import screen
 
         candidates = _check_candidates(candidates, model)
         self.model, self.pool, self.names = model, list(candidates), [c.name for c in candidates]
-        self.folds, self.penalty, self.min_gain = folds, penalty, min_gain
+        self.folds, self.penalty, self.min_gain = folds, check_penalty(penalty), min_gain
         self.seed, self.maxiter, self.groups, self.progress = seed, maxiter, groups, progress
         self.fold_groups = _folds(model.ctx.shape[:4], folds, seed, groups)[1]
         self.screened = screen(model.y, model.scale, candidates)
@@ -581,7 +618,8 @@ class DiagnosisRun:
         unexplained = json_view(residual_domains(model.ctx, model.y * model.scale,
                                                  model.mean_adc()))
         settings = {"folds": self.folds, "fold_groups": self.fold_groups,
-                    "round_cap": ROUND_CAP, "penalty_nats_per_param": self.penalty,
+                    "round_cap": ROUND_CAP, "penalty_nats_per_param": (
+                        "ln(n)/2" if self.penalty == BIC else self.penalty),
                     "min_gain_nats_per_sample": self.min_gain, "seed": self.seed,
                     "candidates": self.names, "screened": self.screened,
                     "stop_reason": self.stop_reason}
@@ -607,7 +645,7 @@ def _check_candidates(candidates, model) -> list:
 
 
 def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int | None = None,
-             penalty: float = 1.0, min_gain: float = 1e-3, seed: int = 0,
+             penalty=BIC, min_gain: float = 1e-3, seed: int = 0,
              maxiter: int = 150, progress=None, groups: str = "auto") -> Diagnosis:
     """The adopt-until-nothing-helps loop; see the module docstring.
 
@@ -622,8 +660,8 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int | N
         Cross-validation folds.
     max_rounds : int, optional
         Most adoptions (default: until nothing helps, at most :data:`ROUND_CAP`).
-    penalty : float
-        Nats per real parameter.
+    penalty : "bic" or float
+        Nats per real parameter (``"bic"``: ``ln(n) / 2``, see :func:`penalty_per_param`).
     progress : callable, optional
         ``progress(name)`` after each candidate is scored.
     groups : {"auto", "channel", "cell"}

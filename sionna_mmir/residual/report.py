@@ -118,7 +118,8 @@ def _markdown(d, doc: dict) -> str:
          + ("whole virtual channels (Tx-Rx pairs, all frames and chirps)"
             if d.settings.get("fold_groups") == "channel" else "(frame, Tx, Rx, chirp) cells")
          + f", held-out white floor profiled, mean effects ranked before variance effects, "
-         f"penalty {d.settings['penalty_nats_per_param']} nats per parameter.", "",
+         f"penalty {d.settings['penalty_nats_per_param']} nats per parameter "
+         "(n: held-out samples).", "",
          "## Error before and after", "", _header(), _row("first fit", d.first)]
     for a in d.adoptions:
         L.append(_row(f"+ {a.name}", a.after))
