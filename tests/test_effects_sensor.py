@@ -22,7 +22,7 @@ from sionna_mmir.effects.library.adc_clipping import ADCClipping
 from sionna_mmir.effects.library.chirp_nonlinearity import ChirpNonlinearity
 from sionna_mmir.effects.library.delay_offset import DelayOffset
 from sionna_mmir.effects.library.frequency_offset import FrequencyOffset
-from sionna_mmir.effects.library.if_filter import IFFilter
+from sionna_mmir.effects.library.if_filter import IFFilter, response_numpy
 from sionna_mmir.effects.library.iq_imbalance import IQImbalance
 from sionna_mmir.effects.library.noise_floor import NoiseFloor
 from sionna_mmir.effects.library.phase_noise import PhaseNoise
@@ -495,8 +495,9 @@ def test_16_if_filter_gradient():
     m = EffectModel(EffectContext(radar), meas, clean)
     comp = m.add(IFFilter())
     comp.values = {"log_fc": np.log10([F_HP / 1e3, F_LP / 1e3]) + np.array([0.1, -0.05]),
-                   "pre_noise": np.array([0.6])}
-    _check_gradient(m)
+                   "log_hp2": np.log10([F_HP / 1e3]) - 0.3, "pre_noise": np.array([0.6]),
+                   "settled": np.array([0.7])}
+    _check_gradient(m, max_step=0.01)       # d NLL / d log_hp2 is small here: a short step
 
 
 def test_17_if_filter_attenuates_tones_by_closed_form():
@@ -533,10 +534,18 @@ def test_18_if_filter_recovered():
     m0 = EffectModel(ctx, meas, clean)
     m0.fit()
     before = _residual_power(m0)
-    m, comp = _fit(ctx, meas, clean, IFFilter())
+    m, comp = _fit(ctx, meas, clean, IFFilter(highpass_stages=1, transient=False))
     f_hp, f_lp = 10 ** comp.values["log_fc"] * 1e3
     assert f_hp == pytest.approx(F_HP, rel=0.02)
     assert f_lp == pytest.approx(F_LP, rel=0.01)
+    # the default filter (two stages, settling) fits the one settled stage as well:
+    # its response matches the planted one across the band (truth: the closed form)
+    m2, comp2 = _fit(ctx, meas, clean, IFFilter())
+    assert float(comp2.values["settled"][0]) > 0.9
+    f = np.linspace(-0.1, 0.9, 200) * radar.sample_rate
+    hp = 10 ** np.r_[comp2.values["log_fc"][0], comp2.values["log_hp2"]] * 1e3
+    fitted = response_numpy(f, hp[0], 10 ** comp2.values["log_fc"][1] * 1e3, 4, f_hp2=hp[1])
+    assert np.max(np.abs(fitted - _analog_response(f))) < 0.02
     sigma2 = np.mean(np.abs(noise) ** 2)
     assert before > 1000 * sigma2
     assert _residual_power(m) == pytest.approx(sigma2, rel=0.05)
@@ -729,8 +738,12 @@ def test_28_if_filter_recovers_the_noise_notch_and_its_share():
     m0 = EffectModel(ctx, meas, clean)
     m0.fit()
     m, comp = _fit(ctx, meas, clean, IFFilter())
-    f_hp = 10 ** comp.values["log_fc"][0] * 1e3
+    # the two high-pass stages are interchangeable: one at the planted corner,
+    # the other switched off (far below a bin)
+    f_hp, f_off = sorted(10 ** np.r_[comp.values["log_fc"][0], comp.values["log_hp2"]] * 1e3,
+                         reverse=True)
     assert f_hp == pytest.approx(400e3, rel=0.1)
+    assert f_off < 0.05 * radar.sample_rate / radar.num_samples
     assert float(comp.values["pre_noise"][0]) == pytest.approx(0.8, abs=0.1)
     # the shaped floor is worth many nats beyond the signal-side response alone
     m1 = EffectModel(ctx, meas, clean)
@@ -795,3 +808,61 @@ def test_30_row_extension_and_crop_match_the_dense_matrix_and_its_adjoint():
     dr.backward(dr.sum(ops.abs2(yc), axis=None))
     gy = np.asarray(dr.grad(y[0]), np.float64) + 1j * np.asarray(dr.grad(y[1]), np.float64)
     np.testing.assert_allclose(gy, 2 * (ye @ S.T) @ S, atol=1e-4)
+
+
+# ============================================== IF filter: two stages, settling
+HP_STAGES = (180e3, 520e3)
+
+
+def _switched_on_hp(radar, amps, tau, corners=HP_STAGES, up=8):
+    """Independent truth: the beat tones through cascaded analog first-order
+    high-passes switched on (zero state) at the window's first sample,
+    simulated by ``scipy.signal.lsim`` on an ``up``-times finer time grid."""
+    N, fs = radar.num_samples, radar.sample_rate
+    fine = synthesize_adc(radar.replace(sample_rate=up * fs, num_samples=up * N), amps, tau)
+    t = np.arange(up * N) / (up * fs)
+    num, den = np.array([1.0]), np.array([1.0])
+    for fc in corners:
+        num, den = np.polymul(num, [1.0, 0.0]), np.polymul(den, [1.0, 2 * np.pi * fc])
+    rows = fine.reshape(-1, up * N)
+    out = np.empty_like(rows)
+    for i, row in enumerate(rows):
+        re = signal.lsim((num, den), row.real, t)[1]
+        im = signal.lsim((num, den), row.imag, t)[1]
+        out[i] = re + 1j * im
+    return out.reshape(fine.shape)[..., ::up][None]
+
+
+def test_31_if_filter_two_stages_switched_on_at_the_window():
+    """Two high-pass stages switched on at the window (a strong near-DC
+    leakage tone and six targets; truth: ``lsim`` of the analog cascade,
+    :func:`_switched_on_hp`): the forward model with ``settled = 0`` follows
+    the truth far closer than the steady state, whose transient over the
+    first samples it misses; a fit finds both corners and an unsettled
+    filter."""
+    ranges, az = (0.06,) + IF_RANGES, (0.0,) + IF_AZ
+    amps = np.r_[3.0, IF_AMPS]
+    radar = _radar(4)
+    tau = _delays(radar, ranges, az)
+    clean = synthesize_adc(radar, amps, tau)[None].astype(np.complex128)
+    truth = _switched_on_hp(radar, amps, tau)
+    ctx = EffectContext(radar)
+    f = IFFilter(extension=48)
+    f.extension.fit(clean)
+    p = {"log_fc": mi.TensorXf(np.log10([HP_STAGES[0] / 1e3, 1e6]).astype(np.float32)),
+         "log_hp2": mi.TensorXf(np.log10([HP_STAGES[1] / 1e3]).astype(np.float32)),
+         "pre_noise": mi.TensorXf(np.array([0.0], np.float32))}
+    err = {}
+    for a in (0.0, 1.0):
+        out = ops.to_numpy(f.apply(ops.tensor(clean), {**p, "settled": mi.TensorXf(
+            np.array([a], np.float32))}, ctx))
+        err[a] = np.linalg.norm(out - truth) / np.linalg.norm(truth)
+    assert err[0.0] < 0.03 and err[1.0] > 5 * err[0.0], err
+
+    meas = truth + _noise(clean.shape, 0.01, 41)
+    m, comp = _fit(ctx, meas, clean, IFFilter())
+    corners = sorted(10 ** np.r_[comp.values["log_fc"][0], comp.values["log_hp2"]] * 1e3)
+    assert corners[0] == pytest.approx(HP_STAGES[0], rel=0.15), corners
+    assert corners[1] == pytest.approx(HP_STAGES[1], rel=0.15), corners
+    assert float(comp.values["settled"][0]) < 0.15
+    assert _residual_power(m) < 1.5 * 0.01 ** 2

@@ -478,6 +478,33 @@ class EffectModel:
         return dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / n
 
     # ----------------------------------------------------------------- fit
+    def _rescale_gain(self, cells=None) -> None:
+        """Start the global gain at the least-squares scale of the current model.
+
+        An effect added to a fitted model can change its level by orders of
+        magnitude (an IF filter that removes most of a strong near-DC tone the
+        base gain had been fitted to); L-BFGS-B started from the old gain may
+        then settle far from the data.  The gain is multiplied by
+        ``<x, y> / <x, x>`` over ``cells`` (exact where the model is linear in
+        it) and kept only if the NLL drops.
+        """
+        if not self.has_base:
+            return
+        mask = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
+        x = self.mean_variance_numpy()[0][mask]
+        e = float(np.vdot(x, x).real)
+        if not e > 0:
+            return
+        k = complex(np.vdot(x, self.y[mask]) / e)
+        if abs(k - 1.0) < 1e-3:
+            return
+        old = np.array(self.nuisance.values["gain"], np.float64)
+        before = self.nll(cells)
+        g = complex(old[0], old[1]) * k
+        self.nuisance.values["gain"] = np.array([g.real, g.imag])
+        if not self.nll(cells) < before:
+            self.nuisance.values["gain"] = old
+
     def _rescale_noise(self, cells=None) -> None:
         """Start the white floor at its closed-form optimum on ``cells``.
 
@@ -513,6 +540,8 @@ class EffectModel:
             keys += [(i, k) for k in self.components[i].specs]
         if not keys:
             return {"nll": self.nll(cells), "iterations": 0, "success": True}
+        if (-1, "gain") in keys:
+            self._rescale_gain(cells)
         if (-1, "log_noise") in keys:
             self._rescale_noise(cells)
         comps = dict(self._all())

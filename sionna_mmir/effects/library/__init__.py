@@ -23,7 +23,7 @@ Each effect, its stage and what the base model lacks:
 ``phase_noise``
     RF: LO phase-noise skirt (variance)
 ``if_filter``
-    IF: high-pass / anti-alias filter response
+    IF: two high-pass stages (with their settling) and the anti-alias low-pass
 ``noise_floor``
     IF: coloured receiver noise (variance)
 ``dc_offset``

@@ -1,16 +1,18 @@
-"""IF chain filters: first-order high-pass and Butterworth anti-alias low-pass.
+"""IF chain filters: two first-order high-pass stages and a Butterworth anti-alias low-pass.
 
 The I and Q branches pass identical real analog filters, so the complex beat
 signal sees ``H(f)`` with ``H(-f) = conj(H(f))``; in the range domain::
 
     X[f, t, r, c, k] <- H(f_k) X[f, t, r, c, k],    x = IDFT(X)
-    H(f) = H_hp(f) H_lp(f)
+    H(f) = H_hp(f; f_hp) H_hp(f; f_hp2) H_lp(f)
     H_hp(f) = (j f / f_hp) / (1 + j f / f_hp)                      (first order)
     H_hp(f_k) := mean of H_hp over the bin [f_k - f_s/2N, f_k + f_s/2N]
     H_lp(f) = 1 / prod_{i=1..n} (j f / f_lp - p_i),   p_i = exp(j pi (2 i + n - 1) / (2 n))
 
 (``n``-th order Butterworth, ``|H_lp|^2 = 1 / (1 + (f / f_lp)^{2 n})``, with its
-phase).  The high-pass is averaged over each bin (``1 + j a [ln(a + j u)]``
+phase).  TI's single-chip front ends have two high-pass stages (HPF1
+175-700 kHz, HPF2 350 kHz-2.8 MHz); the second corner at its lower bound (a
+thousandth of a bin) leaves one.  Each high-pass stage is averaged over each bin (``1 + j a [ln(a + j u)]``
 from ``u = k - 1/2`` to ``k + 1/2``, ``a = f_hp`` in bins): with the point
 value the DC bin would be nulled for any corner, even far below one bin,
 removing an off-bin tone's leakage there; the average tends to 1 as
@@ -32,6 +34,27 @@ prediction (:class:`~._sensor_common.RowExtension`, predictor of order
 grid, and cut back to the window (error about -40 dB in the tests);
 ``extension=0`` gives the plain DFT-domain product.
 
+Settling.  Where the ADC window opens soon after the beat signal starts
+(a short ADC start time; a chirp's leakage and near returns start with the
+ramp), the high-pass has not settled.  A first-order high-pass
+``y' + w y = u'`` switched on (zero state) at ``t = 0`` passes the step,
+``y(0+) = u(0)``, and its output differs from the steady state ``y_ss`` by a
+free decay, so ``y = y_ss + (u(0) - y_ss(0)) exp(-w t)``.  Through two stages
+(poles ``w_1``, ``w_2``; ``z_ss`` the first stage's steady state)::
+
+    y = y_ss + (1 - a) [(z_ss(0) - y_ss(0)) e^{-w_2 t}
+                        + (u(0) - z_ss(0)) (w_2 e^{-w_2 t} - w_1 e^{-w_1 t}) / (w_2 - w_1)]
+
+(the last fraction written as ``e^{-w_1 t} (1 - w_2 t phi((w_2 - w_1) t))``,
+``phi(x) = (1 - e^{-x}) / x``, finite at ``w_1 = w_2``), with ``t`` the
+sample times from the window's first sample and ``a`` (``settled``) the share
+of the transient already gone: 0 for a filter switched on at the window, 1
+in steady state; ``a = 1 - exp(-w t_s)`` for one stage switched on ``t_s``
+before the window.  The low-pass's own transient (a corner near ``f_s``) is
+left out.  A strong tone below the corner (Tx->Rx leakage) leaves a
+transient over the first samples of every chirp that carries more energy
+than its settled output.
+
 Receiver noise.  Thermal noise of the LNA and mixer passes the same
 filters, so a fraction ``rho`` of the white floor ``sigma^2`` (the rest is
 added after the filters: ADC quantisation and driver noise) is shaped by
@@ -48,22 +71,29 @@ gain over range that per-object amplitudes absorb when the scene is a few
 compact scatterers.
 
 Parameters: ``log_fc`` ``[2]`` = (``log10(f_hp / kHz)``, ``log10(f_lp / kHz)``),
-``pre_noise`` ``[1]`` = ``rho`` in ``[0, 1]``.  Stage 2 (IF).
+``log_hp2`` ``[1]`` = ``log10(f_hp2 / kHz)`` (``highpass_stages=2``),
+``pre_noise`` ``[1]`` = ``rho`` in ``[0, 1]``, ``settled`` ``[1]`` = ``a`` in
+``[0, 1]`` (``transient=True``): 5 numbers by default.  Stage 2 (IF).
 
-Initial values: on a grid of corner pairs, the filtered (extended) model is
-fitted to the data up to one complex gain in closed form; the pair that
-explains the most energy is one start, the pair (with ``rho``) whose noise
-shape best explains the residual power spectrum another; the start with the
-lower approximate likelihood wins (see :meth:`IFFilter._init`).
+Initial values: on a grid of corners (one or two high-pass stages, the
+low-pass), the filtered (extended, settled) model is fitted to the data up
+to one complex gain in closed form; the corners that explain the most
+energy, with the settling (0, 1/2 or 1) that explains the most at those
+corners, are one start, the corners (with ``rho``) whose noise shape best
+explains the residual power spectrum another; the start with the lower
+approximate likelihood wins (see :meth:`IFFilter._init`).
 """
 from __future__ import annotations
 
+import typing
+
 import numpy as np
 
+from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
-from ._sensor_common import (LN10, RowExtension, band_frequencies, check_float, check_int,
-                             chirp_deviation, last_axis, scalar, seen_chirp_mean)
+from ._sensor_common import (LN10, RowExtension, _LastAxisSlice, band_frequencies, check_float,
+                             check_int, chirp_deviation, last_axis, scalar, seen_chirp_mean)
 
 dr = ops.dr
 KHZ = 1e3
@@ -83,14 +113,17 @@ def butterworth_poles(order: int) -> np.ndarray:
     return np.exp(1j * np.pi * (2 * i + order - 1) / (2 * order))
 
 
-def response_numpy(f, f_hp, f_lp, order: int, bin_hz=None) -> np.ndarray:
-    """``H(f)`` of the high-pass x low-pass chain (NumPy, complex); with ``bin_hz``
-    the high-pass is the bin average (what :class:`IFFilter` applies)."""
+def response_numpy(f, f_hp, f_lp, order: int, bin_hz=None, f_hp2=None) -> np.ndarray:
+    """``H(f)`` of the high-pass(es) x low-pass chain (NumPy, complex); with
+    ``bin_hz`` each high-pass stage is its bin average (what :class:`IFFilter`
+    applies); ``f_hp2``: the second stage's corner (None: one stage)."""
     f = np.asarray(f, float)
-    if bin_hz is None:
-        h = 1j * f / f_hp / (1 + 1j * f / f_hp)
-    else:
-        h = highpass_bin_average_numpy(f, f_hp, bin_hz)
+    h = np.ones(f.shape, complex)
+    for fc in (f_hp,) if f_hp2 is None else (f_hp, f_hp2):
+        if bin_hz is None:
+            h = h * (1j * f / fc / (1 + 1j * f / fc))
+        else:
+            h = h * highpass_bin_average_numpy(f, fc, bin_hz)
     s = 1j * f / f_lp
     for pole in butterworth_poles(order):
         h = h / (s - pole)
@@ -105,10 +138,14 @@ def highpass_bin_average_numpy(f, f_hp, bin_hz) -> np.ndarray:
     return 1 + 1j * a * d
 
 
-def noise_gain_numpy(f, f_hp, f_lp, order: int, bin_hz, rho) -> np.ndarray:
-    """``s_k`` of the module docstring at frequencies ``f`` [Hz] (NumPy)."""
-    a, u = f_hp / bin_hz, np.abs(np.asarray(f, float)) / bin_hz
-    hp = 1.0 - a * (np.arctan((u + 0.5) / a) - np.arctan((u - 0.5) / a))
+def noise_gain_numpy(f, f_hp, f_lp, order: int, bin_hz, rho, f_hp2=None) -> np.ndarray:
+    """``s_k`` of the module docstring at frequencies ``f`` [Hz] (NumPy); with
+    ``f_hp2`` the product of the two stages' bin-averaged power responses."""
+    u = np.abs(np.asarray(f, float)) / bin_hz
+    hp = 1.0
+    for fc in (f_hp,) if f_hp2 is None else (f_hp, f_hp2):
+        a = fc / bin_hz
+        hp = hp * (1.0 - a * (np.arctan((u + 0.5) / a) - np.arctan((u - 0.5) / a)))
     lp = 1.0 / (1.0 + (np.abs(f) / f_lp) ** (2 * order))
     return rho * hp * lp + (1.0 - rho)
 
@@ -133,8 +170,25 @@ def corner_bounds(ctx):
 
 
 class IFFilter(Effect):
-    """First-order high-pass + Butterworth low-pass (2 corners, log10 kHz) and the
-    share ``rho`` of the white floor they filter (3 parameters)."""
+    """One or two first-order high-pass stages + a Butterworth low-pass (corners in
+    log10 kHz), the share ``rho`` of the white floor they filter and the share
+    ``a`` of the pre-window input the high-pass has settled on (5 parameters by
+    default, 3 with ``highpass_stages=1, transient=False``).
+
+    Parameters
+    ----------
+    lowpass_order : int
+        Butterworth order of the anti-alias low-pass (1-12, default 4).
+    band_start : float
+        Lower edge of the beat band as a fraction of ``f_s`` (default -0.1).
+    extension, prediction_order : int
+        Samples predicted on each side of a row, and the predictor's order.
+    highpass_stages : {1, 2}
+        First-order high-pass stages (default 2, as TI's HPF1 and HPF2).
+    transient : bool
+        Fit how far the high-pass has settled when the window opens
+        (default True; False: steady state).
+    """
 
     name = "if_filter"
     kind = "mean"
@@ -144,9 +198,13 @@ class IFFilter(Effect):
     description = "IF high-pass (1st order) and anti-alias low-pass (Butterworth)"
 
     def __init__(self, lowpass_order: int = 4, band_start: float = -0.1, extension: int = 32,
-                 prediction_order: int = 32):
+                 prediction_order: int = 32, highpass_stages: int = 2, transient: bool = True):
         owner = type(self).__name__
         self.lowpass_order = check_int(owner, "lowpass_order", lowpass_order, 1, 12)
+        self.highpass_stages = check_int(owner, "highpass_stages", highpass_stages, 1, 2)
+        if not isinstance(transient, (bool, np.bool_)):
+            raise ConfigError(f"{owner}: transient must be True or False, got {transient!r}")
+        self.transient = bool(transient)
         self.band_start = check_float(owner, "band_start", band_start, -1.0, 0.0)
         self.extension = RowExtension(
             check_int(owner, "extension", extension, 0, 4096),
@@ -156,42 +214,81 @@ class IFFilter(Effect):
     def param_specs(self, ctx, model, residual):
         self.extension.fit(model)
         (hl, hh), (ll, lh) = corner_bounds(ctx)
-        hp, lp, rho = self._init(ctx, model, model + residual, (hl, hh), (ll, lh))
-        return {"log_fc": ParamSpec([hp, lp], lower=[hl, ll], upper=[hh, lh], unit="log10 kHz"),
-                "pre_noise": ParamSpec([rho], lower=0.0, upper=1.0, unit="share of the floor")}
+        st = self._init(ctx, model, model + residual, (hl, hh), (ll, lh))
+        specs = {"log_fc": ParamSpec([st.hp, st.lp], lower=[hl, ll], upper=[hh, lh],
+                                     unit="log10 kHz")}
+        if self.highpass_stages == 2:
+            specs["log_hp2"] = ParamSpec([st.hp2], lower=hl, upper=hh, unit="log10 kHz")
+        specs["pre_noise"] = ParamSpec([st.rho], lower=0.0, upper=1.0, unit="share of the floor")
+        if self.transient:
+            specs["settled"] = ParamSpec([st.settled], lower=0.0, upper=1.0,
+                                         unit="share of the pre-window input")
+        return specs
 
-    def _init(self, ctx, model, data, hb, lb):
-        """Starting ``(log f_hp, log f_lp, rho)``: the better (by the approximate
-        profiled likelihood of :meth:`_start_nll`) of the signal start
+    def _init(self, ctx, model, data, hb, lb) -> "_Start":
+        """The starting values: the better (by the approximate profiled
+        likelihood of :meth:`_start_nll`) of the signal start
         (:meth:`_signal_init`, ``rho`` by a 1-D search) and the noise start
-        (:meth:`_noise_init`)."""
-        hp, lp = self._signal_init(ctx, model, data, hb, lb)
+        (:meth:`_noise_init`, with the signal start's settling)."""
+        sig = self._signal_init(ctx, model, data, hb, lb)
         noise = chirp_deviation(data - model)
         noise = data - model if noise is None else noise
-        starts = [(hp, lp, self._noise_init(ctx, noise, [hp], [lp])[2]),
-                  self._noise_init(ctx, noise, np.linspace(hb[0], hb[1], 32),
-                                   np.linspace(lb[0], lb[1], 16))]
-        nll = [self._start_nll(ctx, model, data, *st) for st in starts]
+        hps, lps = np.linspace(hb[0], hb[1], 16), np.linspace(lb[0], lb[1], 12)
+        shaped = self._noise_init(ctx, noise, self._hp_pairs(hps, hb[0]), lps)
+        starts = [sig._replace(rho=self._noise_init(ctx, noise, [(sig.hp, sig.hp2)],
+                                                    [sig.lp]).rho),
+                  shaped._replace(settled=sig.settled)]
+        nll = [self._start_nll(ctx, model, data, st) for st in starts]
         return starts[int(np.argmin(nll))]
 
-    def _filtered_numpy(self, ctx, model, hp, lp) -> np.ndarray:
-        """``crop(IDFT(H DFT(extend(model))))`` in NumPy."""
+    def _hp_pairs(self, hps, off) -> list:
+        """High-pass corner pairs of the init grids: one stage (the second at
+        ``off``, its lower bound) or two with ``f_hp <= f_hp2``."""
+        if self.highpass_stages == 1:
+            return [(float(h), float(off)) for h in hps]
+        return [(float(h), float(off)) for h in hps] + [
+            (float(h), float(g)) for i, h in enumerate(hps) for g in hps[i:]]
+
+    def _corners(self, st) -> dict:
+        """Corner frequencies [Hz] of a start for the NumPy responses."""
+        return {"f_hp": 10 ** st.hp * KHZ, "f_lp": 10 ** st.lp * KHZ,
+                "f_hp2": 10 ** st.hp2 * KHZ if self.highpass_stages == 2 else None}
+
+    def _filtered_numpy(self, ctx, model, st) -> np.ndarray:
+        """``y`` of the module docstring (settling included) in NumPy."""
         N = ctx.radar.num_samples
         ext = self.extension
         E = ext.matrix if ext.n == N else None
-        xe = ext.extend_numpy(model, E)
-        n = xe.shape[-1]
-        H = response_numpy(band_frequencies(ctx, self.band_start, n), 10 ** hp * KHZ,
-                           10 ** lp * KHZ, self.lowpass_order, ctx.radar.sample_rate / n)
-        return ext.crop_numpy(np.fft.ifft(np.fft.fft(xe, axis=-1) * H, axis=-1), E)
+        Xe = np.fft.fft(ext.extend_numpy(model, E), axis=-1)
+        n = Xe.shape[-1]
+        c = self._corners(st)
+        f, bin_hz = band_frequencies(ctx, self.band_start, n), ctx.radar.sample_rate / n
+        H = response_numpy(f, c["f_hp"], c["f_lp"], self.lowpass_order, bin_hz, c["f_hp2"])
+        y = ext.crop_numpy(np.fft.ifft(Xe * H, axis=-1), E)
+        if not self.transient or st.settled >= 1.0:
+            return y
+        t = np.arange(N) / ctx.radar.sample_rate
+        w1 = 2 * np.pi * c["f_hp"]
+        u0, y0 = model[..., :1], y[..., :1]
+        if c["f_hp2"] is None:
+            return y + (1.0 - st.settled) * (u0 - y0) * np.exp(-w1 * t)
+        H1 = highpass_bin_average_numpy(f, c["f_hp"], bin_hz)
+        z0 = ext.crop_numpy(np.fft.ifft(Xe * H1, axis=-1), E)[..., :1]
+        w2 = 2 * np.pi * c["f_hp2"]
+        x = (w2 - w1) * t
+        phi = np.where(np.abs(x) < 1e-4, 1 - x / 2 + x * x / 6,
+                       -np.expm1(-x) / np.where(x == 0, 1.0, x))
+        both = np.exp(-w1 * t) * (1.0 - w2 * t * phi)
+        return y + (1.0 - st.settled) * ((z0 - y0) * np.exp(-w2 * t) + (u0 - z0) * both)
 
-    def _noise_shape(self, ctx, hp, lp, rho) -> np.ndarray:
+    def _noise_shape(self, ctx, st) -> np.ndarray:
         r = ctx.radar
-        f = band_frequencies(ctx, -0.5)
-        return noise_gain_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
-                                r.sample_rate / r.num_samples, rho)
+        c = self._corners(st)
+        return noise_gain_numpy(band_frequencies(ctx, -0.5), c["f_hp"], c["f_lp"],
+                                self.lowpass_order, r.sample_rate / r.num_samples, st.rho,
+                                c["f_hp2"])
 
-    def _start_nll(self, ctx, model, data, hp, lp, rho) -> float:
+    def _start_nll(self, ctx, model, data, st) -> float:
         """Mean NLL per sample of ``data`` under ``g filter(model)`` (``g`` least
         squares) and the white floor shaped by ``s`` (profiled), cells that are
         all zero (held out) left out.
@@ -202,48 +299,53 @@ class IFFilter(Effect):
         from that mean (``C - 1`` in ``C``, receiver noise only), each with its
         own profiled floor, so the noise shape is judged where noise is all
         there is."""
-        xf = self._filtered_numpy(ctx, model, hp, lp)
+        xf = self._filtered_numpy(ctx, model, st)
         e = np.vdot(xf, xf).real
         g = np.vdot(xf, data) / e if e > 0 else 0.0
         r = data - g * xf
         dev = chirp_deviation(r)
         if dev is None:
-            return self._shape_nll(ctx, r, hp, lp, rho)
+            return self._shape_nll(ctx, r, st)
         C = r.shape[3]
         mean = seen_chirp_mean(r)
-        return (self._shape_nll(ctx, mean, hp, lp, rho)
-                + (C - 1) * self._shape_nll(ctx, dev, hp, lp, rho)) / C
+        return (self._shape_nll(ctx, mean, st) + (C - 1) * self._shape_nll(ctx, dev, st)) / C
 
-    def _shape_nll(self, ctx, residual, hp, lp, rho) -> float:
+    def _shape_nll(self, ctx, residual, st) -> float:
         P = _bin_power(residual)
-        s = self._noise_shape(ctx, hp, lp, rho)
+        s = self._noise_shape(ctx, st)
         s2 = max(float(np.mean(P / s)), 1e-300)
         return float(np.log(s2) + 1.0 + np.mean(np.log(s)))
 
-    def _noise_init(self, ctx, residual, hps, lps):
-        """Best ``(log f_hp, log f_lp, rho)`` for the residual's power spectrum
-        over the given corner grids and ``rho`` in 0, 0.05, ..., 1."""
+    def _noise_init(self, ctx, residual, hp_pairs, lps) -> "_Start":
+        """Best corners and ``rho`` for the residual's power spectrum over the
+        given high-pass pairs ``(log f_hp, log f_hp2)``, low-pass corners and
+        ``rho`` in 0, 0.05, ..., 1 (settled)."""
         P = _bin_power(residual)
         r = ctx.radar
         f, bin_hz = band_frequencies(ctx, -0.5), r.sample_rate / r.num_samples
         rho = np.linspace(0.0, 1.0, 21)[:, None]
-        best = (np.inf, float(hps[0]), float(lps[-1]), 0.0)
-        for hp in hps:
+        hp0, hp20 = hp_pairs[0]
+        best = (np.inf, _Start(float(hp0), float(hp20), float(lps[-1]), 0.0, 1.0))
+        for hp, hp2 in hp_pairs:
             for lp in lps:
-                shaped = noise_gain_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
-                                          bin_hz, 1.0)
+                st = _Start(float(hp), float(hp2), float(lp), 1.0, 1.0)
+                c = self._corners(st)
+                shaped = noise_gain_numpy(f, c["f_hp"], c["f_lp"], self.lowpass_order, bin_hz,
+                                          1.0, c["f_hp2"])
                 s = rho * shaped[None] + (1.0 - rho)                        # [rho, N]
                 nll = (np.log(np.maximum(np.mean(P / s, axis=1), 1e-300))
                        + np.mean(np.log(s), axis=1))
                 j = int(np.argmin(nll))
                 if nll[j] < best[0]:
-                    best = (float(nll[j]), float(hp), float(lp), float(rho[j, 0]))
-        return best[1:]
+                    best = (float(nll[j]), st._replace(rho=float(rho[j, 0])))
+        return best[1]
 
-    def _signal_init(self, ctx, model, data, hb, lb):
-        """Best ``(log f_hp, log f_lp)`` on a 32 x 32 grid, by the least-squares
-        fit of ``g * crop(IDFT(H DFT(extend(model))))`` to ``data`` (one complex
-        gain ``g`` per grid point, in closed form).
+    def _signal_init(self, ctx, model, data, hb, lb) -> "_Start":
+        """Best corners and settling on a grid (16 high-pass corners as one
+        stage or as pairs, 12 low-pass corners; settled), by the
+        least-squares fit of ``g * y(model)`` to ``data`` (one complex gain ``g``
+        per grid point, in closed form); then the settling among 0, 1/2 and 1
+        that explains the most at those corners.
 
         The filtered model is linear in the response samples ``H_k`` on the
         extended grid: ``crop(IDFT(H Xe)) = sum_k H_k B_k`` with
@@ -251,38 +353,50 @@ class IFFilter(Effect):
         Dirichlet kernel) and ``<B_k, y> = sum_rows conj(Xe_k) Ye_k / n`` (``Ye``
         the DFT of the data placed in the window), so each grid point costs
         one ``n x n`` quadratic form: the explained energy
-        ``|H^H v|^2 / H^H G H``.  With the same row extension as the forward
-        model, off-bin tones are filtered in steady state here too (a plain
-        per-bin ratio of DFTs confuses the high-pass's phase with a low-pass
-        delay).
+        ``|H^H v|^2 / H^H G H``.  With the same row extension as the forward model, off-bin tones are filtered in
+        steady state here too (a plain per-bin ratio of DFTs confuses the
+        high-pass's phase with a low-pass delay).
         """
         N = ctx.radar.num_samples
         ext = self.extension
         E = ext.matrix if ext.n == N else None
+        off = _Start(float(hb[0]), float(hb[0]), float(lb[1]), 0.0, 1.0)
         xe = ext.extend_numpy(model, E).reshape(-1, ext.length if E is not None else N)
         n = xe.shape[-1]
         m = ext.margin if E is not None else 0
         ye = np.zeros_like(xe)
         ye[:, m:m + N] = data.reshape(-1, N)
-        Xe, Ye = np.fft.fft(xe, axis=-1), np.fft.fft(ye, axis=-1)
-        if not np.any(Xe != 0):
-            return hb[0], lb[1]
-        v = np.sum(np.conj(Xe) * Ye, axis=0) / n
+        Ye = np.fft.fft(ye, axis=-1)
+        f = band_frequencies(ctx, self.band_start, n)
+        bin_hz = ctx.radar.sample_rate / n
+        lps = np.linspace(lb[0], lb[1], 12)
+        grid = [(hp, hp2, lp) for hp, hp2 in self._hp_pairs(np.linspace(hb[0], hb[1], 16), hb[0])
+                for lp in lps]
+        H = np.stack([response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
+                                     bin_hz, 10 ** hp2 * KHZ if self.highpass_stages == 2
+                                     else None) for hp, hp2, lp in grid])   # [grid, n]
         win = np.exp(2j * np.pi * np.arange(n) * m / n) * np.fft.fft(
             (np.arange(n) < N).astype(float)).conj() / n ** 2      # D_kl / n^2 = win[l - k]
         dk = (np.arange(n)[None, :] - np.arange(n)[:, None]) % n
+        Xe = np.fft.fft(xe, axis=-1)
+        if not np.any(Xe != 0):
+            return off
+        v = np.sum(np.conj(Xe) * Ye, axis=0) / n
         G = (np.conj(Xe).T @ Xe) * win[dk]
-        f = band_frequencies(ctx, self.band_start, n)
-        bin_hz = ctx.radar.sample_rate / n
-        grid = [(hp, lp) for hp in np.linspace(hb[0], hb[1], 32)
-                for lp in np.linspace(lb[0], lb[1], 32)]
-        H = np.stack([response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
-                                     bin_hz) for hp, lp in grid])            # [grid, n]
         den = np.real(np.sum(np.conj(H) * (H @ G.T), axis=1))
         num = np.abs(np.conj(H) @ v) ** 2
         gain = np.where(den > 0, num / np.where(den > 0, den, 1.0), -np.inf)
-        hp, lp = grid[int(np.argmax(gain))]
-        return float(hp), float(lp)
+        hp, hp2, lp = grid[int(np.argmax(gain))]
+        start = _Start(float(hp), float(hp2), float(lp), 0.0, 1.0)
+        if not self.transient:
+            return start
+
+        def explained(a):
+            xf = self._filtered_numpy(ctx, model, start._replace(settled=a))
+            e = np.vdot(xf, xf).real
+            return np.abs(np.vdot(xf, data)) ** 2 / e if e > 0 else -np.inf
+
+        return start._replace(settled=max((1.0, 0.5, 0.0), key=explained))
 
     # --------------------------------------------------------------- forward
     def response(self, p, ctx, n: int | None = None):
@@ -292,8 +406,12 @@ class IFFilter(Effect):
         n = n or r.num_samples
         bin_hz = r.sample_rate / n
         nu = band_frequencies(ctx, self.band_start, n) / bin_hz             # bins
-        a = dr.exp(LN10 * scalar(p["log_fc"], 0)) * (KHZ / bin_hz)          # f_hp [bins]
-        h = _highpass_bin_average(a, last_axis(nu + 0.5), last_axis(nu - 0.5))
+        up, lo = last_axis(nu + 0.5), last_axis(nu - 0.5)
+        h = None
+        for corner in self._highpass_corners(p):
+            a = dr.exp(LN10 * corner) * (KHZ / bin_hz)                       # f_hp [bins]
+            stage = _highpass_bin_average(a, up, lo)
+            h = stage if h is None else ops.cmul(h, stage)
         w = last_axis(nu * bin_hz / KHZ) * dr.exp(-LN10 * scalar(p["log_fc"], 1))
         for pole in butterworth_poles(self.lowpass_order):
             re, im = -float(pole.real), w - float(pole.imag)                # s - p_i (Python
@@ -302,13 +420,23 @@ class IFFilter(Effect):
             h = ops.cmul(h, (re / mag, -im / mag))
         return h
 
+    def _highpass_corners(self, p) -> list:
+        """``log10(f / kHz)`` of the high-pass stages in ``p`` (Dr.Jit scalars)."""
+        corners = [scalar(p["log_fc"], 0)]
+        if self.highpass_stages == 2 and "log_hp2" in p:
+            corners.append(scalar(p["log_hp2"], 0))
+        return corners
+
     def noise_gain(self, p, ctx):
         """``s_k`` of the module docstring, ``(1, 1, 1, 1, N)`` (AD in ``p``)."""
         r = ctx.radar
         bin_hz = r.sample_rate / r.num_samples
         nu = np.abs(band_frequencies(ctx, -0.5)) / bin_hz                  # |f| [bins]
-        a = dr.exp(LN10 * scalar(p["log_fc"], 0)) * (KHZ / bin_hz)
-        hp = 1.0 - a * (dr.atan2(last_axis(nu + 0.5), a) - dr.atan2(last_axis(nu - 0.5), a))
+        hp = 1.0
+        for corner in self._highpass_corners(p):
+            a = dr.exp(LN10 * corner) * (KHZ / bin_hz)
+            hp = hp * (1.0 - a * (dr.atan2(last_axis(nu + 0.5), a)
+                                  - dr.atan2(last_axis(nu - 0.5), a)))
         w = last_axis(nu * bin_hz / KHZ) * dr.exp(-LN10 * scalar(p["log_fc"], 1))
         lp = 1.0 / (1.0 + w ** (2 * self.lowpass_order))
         rho = scalar(p["pre_noise"], 0)
@@ -316,16 +444,76 @@ class IFFilter(Effect):
 
     def apply(self, x, p, ctx):
         ext = self.extension
-        E = ext.current(lambda: ops.to_numpy(x), ctx.radar.num_samples)
-        xe = ext.extend(x, E)
-        ye = ops.idft(ops.cmul(ops.dft(xe), self.response(p, ctx, int(xe[0].shape[-1]))))
-        return ext.crop(ye, E)
+        N = ctx.radar.num_samples
+        E = ext.current(lambda: ops.to_numpy(x), N)
+        Xe = ops.dft(ext.extend(x, E))
+        n = int(Xe[0].shape[-1])
+        y = ext.crop(ops.idft(ops.cmul(Xe, self.response(p, ctx, n))), E)
+        if not (self.transient and "settled" in p):
+            return y
+        return self._transient(x, Xe, y, p, ctx, E)
+
+    def _transient(self, x, Xe, y, p, ctx, E):
+        """``y`` plus the unsettled high-pass's free decay (module docstring; AD)."""
+        r = ctx.radar
+        t = last_axis(np.arange(r.num_samples) / r.sample_rate)
+        unseen = 1.0 - scalar(p["settled"], 0)
+        corners = self._highpass_corners(p)
+        w1 = dr.exp(LN10 * corners[0]) * (2 * np.pi * KHZ)
+        u0, y0 = first_sample(x), first_sample(y)
+        d1 = dr.exp(-w1 * t)
+        if len(corners) == 1:
+            return ops.cadd(y, _scaled(_minus(u0, y0), unseen, d1))
+        n = int(Xe[0].shape[-1])
+        bin_hz = r.sample_rate / n
+        nu = band_frequencies(ctx, self.band_start, n) / bin_hz
+        a1 = dr.exp(LN10 * corners[0]) * (KHZ / bin_hz)
+        H1 = _highpass_bin_average(a1, last_axis(nu + 0.5), last_axis(nu - 0.5))
+        z0 = first_sample(self.extension.crop(ops.idft(ops.cmul(Xe, H1)), E))
+        w2 = dr.exp(LN10 * corners[1]) * (2 * np.pi * KHZ)
+        xw = (w2 - w1) * t
+        phi = dr.select(dr.abs(xw) < 1e-4, 1.0 - xw * 0.5 + xw * xw * (1.0 / 6.0),
+                        (1.0 - dr.exp(-xw)) / dr.select(xw == 0.0, 1.0, xw))
+        both = d1 * (1.0 - w2 * t * phi)
+        out = ops.cadd(y, _scaled(_minus(z0, y0), unseen, dr.exp(-w2 * t)))
+        return ops.cadd(out, _scaled(_minus(u0, z0), unseen, both))
 
     def summary(self, p, ctx):
         hp, lp = (float(v) for v in np.ravel(p["log_fc"])[:2])
+        hp2 = float(np.ravel(p["log_hp2"])[0]) if "log_hp2" in p else None
         f = np.abs(band_frequencies(ctx, self.band_start))
-        H = response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order)
-        return {"highpass_corner_khz": round(10 ** hp, 4), "lowpass_corner_khz": round(10 ** lp, 4),
-                "lowpass_order": self.lowpass_order,
-                "filtered_noise_share": round(float(np.ravel(p["pre_noise"])[0]), 4),
-                "min_gain_db_in_band": float(20 * np.log10(np.abs(H[1:]).min()))}
+        H = response_numpy(f, 10 ** hp * KHZ, 10 ** lp * KHZ, self.lowpass_order,
+                           f_hp2=None if hp2 is None else 10 ** hp2 * KHZ)
+        out = {"highpass_corner_khz": round(10 ** hp, 4), "lowpass_corner_khz": round(10 ** lp, 4),
+               "lowpass_order": self.lowpass_order,
+               "filtered_noise_share": round(float(np.ravel(p["pre_noise"])[0]), 4),
+               "min_gain_db_in_band": float(20 * np.log10(np.abs(H[1:]).min()))}
+        if hp2 is not None:
+            out["second_highpass_corner_khz"] = round(10 ** hp2, 4)
+        if "settled" in p:
+            out["settled_share"] = round(float(np.ravel(p["settled"])[0]), 4)
+        return out
+
+
+def _scaled(z, k, d):
+    """``k d z`` for a complex pair ``z [..., 1]``, real scalar ``k`` and real decay ``d [..., N]``."""
+    return (z[0] * (k * d), z[1] * (k * d))
+
+
+def _minus(a, b):
+    return (a[0] - b[0], a[1] - b[1])
+
+
+def first_sample(z):
+    """``z[..., :1]`` of a complex pair (AD)."""
+    return dr.custom(_LastAxisSlice, z[0], z[1], start=0, length=1)
+
+
+class _Start(typing.NamedTuple):
+    """Starting values of :class:`IFFilter` (corners in log10 kHz)."""
+
+    hp: float
+    hp2: float
+    lp: float
+    rho: float
+    settled: float
