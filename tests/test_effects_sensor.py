@@ -858,6 +858,16 @@ def test_31_if_filter_two_stages_switched_on_at_the_window():
             np.array([a], np.float32))}, ctx))
         err[a] = np.linalg.norm(out - truth) / np.linalg.norm(truth)
     assert err[0.0] < 0.03 and err[1.0] > 5 * err[0.0], err
+    # the transient is symmetric in the two poles and finite for any corners,
+    # a first stage at the band edge above a low second one included
+    swapped = {**p, "log_fc": mi.TensorXf(np.log10([HP_STAGES[1] / 1e3, 1e6]).astype(np.float32)),
+               "log_hp2": mi.TensorXf(np.log10([HP_STAGES[0] / 1e3]).astype(np.float32)),
+               "settled": mi.TensorXf(np.array([0.0], np.float32))}
+    out = ops.to_numpy(f.apply(ops.tensor(clean), swapped, ctx))
+    assert np.linalg.norm(out - truth) / np.linalg.norm(truth) == pytest.approx(err[0.0], rel=1e-3)
+    edge = {**swapped, "log_fc": mi.TensorXf(np.array([np.log10(radar.sample_rate / 2e3), 6.0],
+                                                      np.float32))}
+    assert np.all(np.isfinite(ops.to_numpy(f.apply(ops.tensor(clean), edge, ctx))))
 
     meas = truth + _noise(clean.shape, 0.01, 41)
     m, comp = _fit(ctx, meas, clean, IFFilter())

@@ -469,3 +469,17 @@ def test_18_the_default_penalty_grows_with_the_held_out_samples():
     for bad in ("aic", "nan", -1.0, float("inf"), True):
         with pytest.raises(ConfigError, match="penalty"):
             check_penalty(bad)
+
+
+def test_19_a_model_that_overflows_scores_far_below_zero_instead_of_failing():
+    """A candidate whose model overflows (non-finite residuals) must lose the
+    ranking, not stop the loop: its held-out NLL is 1e30 per cell."""
+    from sionna_mmir.effects.model import _profiled_cells
+
+    r2 = np.ones((3, 8))
+    r2[1, 2] = np.inf
+    assert np.all(_profiled_cells(r2, np.ones_like(r2), np.full_like(r2, 0.1)) == 1e30)
+    r2[1, 2] = np.nan
+    assert np.all(_profiled_cells(r2, np.ones_like(r2), np.zeros_like(r2)) == 1e30)
+    ok = _profiled_cells(np.ones((3, 8)), np.ones((3, 8)), np.zeros((3, 8)))
+    assert np.allclose(ok, 1.0)                            # log(1) + 1

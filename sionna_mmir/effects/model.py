@@ -585,7 +585,11 @@ class EffectModel:
 
 def _profiled_cells(r2, s, extra) -> np.ndarray:
     """Per-cell mean NLL ``mean_k (r2 / tot + log tot)``, ``tot = sigma^2 s + extra``,
-    at the ``sigma^2`` that minimises the total over these cells."""
+    at the ``sigma^2`` that minimises the total over these cells; 1e30 where a
+    model that overflowed left non-finite residuals (the candidate then
+    scores far below zero instead of stopping the loop)."""
+    if not (np.all(np.isfinite(r2)) and np.all(np.isfinite(extra))):
+        return np.full(r2.shape[:-1], 1e30)
     extra = np.maximum(extra, 0.0)
     if not np.any(extra > 0):
         ls = np.log(max(np.mean(r2 / s), 1e-30))

@@ -45,8 +45,9 @@ free decay, so ``y = y_ss + (u(0) - y_ss(0)) exp(-w t)``.  Through two stages
     y = y_ss + (1 - a) [(z_ss(0) - y_ss(0)) e^{-w_2 t}
                         + (u(0) - z_ss(0)) (w_2 e^{-w_2 t} - w_1 e^{-w_1 t}) / (w_2 - w_1)]
 
-(the last fraction written as ``e^{-w_1 t} (1 - w_2 t phi((w_2 - w_1) t))``,
-``phi(x) = (1 - e^{-x}) / x``, finite at ``w_1 = w_2``), with ``t`` the
+(the last fraction, symmetric in the two poles, written as ``e^{-w_l t} (1 -
+w_h t phi((w_h - w_l) t))`` with ``w_l <= w_h`` the lower and higher pole and
+``phi(x) = (1 - e^{-x}) / x``: finite at ``w_1 = w_2`` and free of overflow), with ``t`` the
 sample times from the window's first sample and ``a`` (``settled``) the share
 of the transient already gone: 0 for a filter switched on at the window, 1
 in steady state; ``a = 1 - exp(-w t_s)`` for one stage switched on ``t_s``
@@ -275,10 +276,10 @@ class IFFilter(Effect):
         H1 = highpass_bin_average_numpy(f, c["f_hp"], bin_hz)
         z0 = ext.crop_numpy(np.fft.ifft(Xe * H1, axis=-1), E)[..., :1]
         w2 = 2 * np.pi * c["f_hp2"]
-        x = (w2 - w1) * t
-        phi = np.where(np.abs(x) < 1e-4, 1 - x / 2 + x * x / 6,
-                       -np.expm1(-x) / np.where(x == 0, 1.0, x))
-        both = np.exp(-w1 * t) * (1.0 - w2 * t * phi)
+        lo, hi = min(w1, w2), max(w1, w2)
+        x = (hi - lo) * t
+        phi = np.where(x < 1e-4, 1 - x / 2 + x * x / 6, -np.expm1(-x) / np.where(x == 0, 1.0, x))
+        both = np.exp(-lo * t) * (1.0 - hi * t * phi)
         return y + (1.0 - st.settled) * ((z0 - y0) * np.exp(-w2 * t) + (u0 - z0) * both)
 
     def _noise_shape(self, ctx, st) -> np.ndarray:
@@ -471,10 +472,11 @@ class IFFilter(Effect):
         H1 = _highpass_bin_average(a1, last_axis(nu + 0.5), last_axis(nu - 0.5))
         z0 = first_sample(self.extension.crop(ops.idft(ops.cmul(Xe, H1)), E))
         w2 = dr.exp(LN10 * corners[1]) * (2 * np.pi * KHZ)
-        xw = (w2 - w1) * t
-        phi = dr.select(dr.abs(xw) < 1e-4, 1.0 - xw * 0.5 + xw * xw * (1.0 / 6.0),
+        lo, hi = dr.minimum(w1, w2), dr.maximum(w1, w2)        # symmetric in the poles
+        xw = (hi - lo) * t                                      # >= 0: no overflow
+        phi = dr.select(xw < 1e-4, 1.0 - xw * 0.5 + xw * xw * (1.0 / 6.0),
                         (1.0 - dr.exp(-xw)) / dr.select(xw == 0.0, 1.0, xw))
-        both = d1 * (1.0 - w2 * t * phi)
+        both = dr.exp(-lo * t) * (1.0 - hi * t * phi)
         out = ops.cadd(y, _scaled(_minus(z0, y0), unseen, dr.exp(-w2 * t)))
         return ops.cadd(out, _scaled(_minus(u0, z0), unseen, both))
 
