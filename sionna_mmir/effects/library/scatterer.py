@@ -195,20 +195,29 @@ def range_azimuth_map(z, ctx, az_deg, el_deg=0.0, pad: int = 4):
     return np.abs(beam) ** 2, ranges
 
 
-def matched_power(z, ctx, p) -> tuple:
+def seen_channels(z) -> np.ndarray:
+    """``[T, R]``: the channels of ``z [T, R, N]`` with any non-zero sample (the
+    others are held out by a cross-validation mask)."""
+    return np.any(np.asarray(z) != 0, axis=-1)
+
+
+def matched_power(z, ctx, p, seen=None) -> tuple:
     """``(|s^H z|^2 / |s|^2, A)`` of the referred point signal ``s`` at ``p [3]`` on
-    ``z [T, R, N]``."""
+    ``z [T, R, N]``, over the ``seen`` channels ``[T, R]`` (default all): with
+    held-out channels zeroed, the signal's energy there must not count, or the
+    least-squares amplitude ``A`` shrinks by the share held out."""
     ph = ref_phase_np(ctx, p, p)
     c = np.sum((np.cos(ph) - 1j * np.sin(ph)) * z)
-    n = ph.size
+    n = ph.size if seen is None else ph.shape[-1] * max(int(np.sum(seen)), 1)
     return float(abs(c) ** 2 / n), complex(c / n)
 
 
-def refine_point(z, ctx, r0, az0, el0=0.0, fit_el=False):
+def refine_point(z, ctx, r0, az0, el0=0.0, fit_el=False, seen=None):
     """Local maximum of the exact matched filter from ``(r0, az0, el0)``.
 
     Nelder-Mead over ``(r [m], az [deg][, el [deg]])``.  Returns ``(r, az,
-    el, A_ref)`` with ``A_ref`` the LS amplitude of the referred signal.
+    el, A_ref)`` with ``A_ref`` the LS amplitude of the referred signal on
+    the ``seen`` channels (:func:`matched_power`).
     """
     res = ctx.radar.range_resolution
 
@@ -216,7 +225,7 @@ def refine_point(z, ctx, r0, az0, el0=0.0, fit_el=False):
         return v[0] * unit_vectors(v[1], v[2] if fit_el else el0)
 
     def cost(v):
-        return -matched_power(z, ctx, point(v))[0]
+        return -matched_power(z, ctx, point(v), seen)[0]
 
     x0 = np.array([r0, az0] + ([el0] if fit_el else []), np.float64)
     step = np.array([res / 4, 1.0] + ([3.0] if fit_el else []))
@@ -227,7 +236,7 @@ def refine_point(z, ctx, r0, az0, el0=0.0, fit_el=False):
                             "maxiter": 80 * len(x0)})
     v = out.x
     el = float(v[2]) if fit_el else float(el0)
-    _, a = matched_power(z, ctx, point(v))
+    _, a = matched_power(z, ctx, point(v), seen)
     return float(v[0]), float(v[1]), el, a
 
 
@@ -250,24 +259,29 @@ def strongest_points(z, ctx, min_range, max_range, fit_el, count=1, az_limit=80.
     subtracted, again, until a peak is ``depth_db`` under the first (so a
     point's side lobes are never taken for another point).
 
+    Channels that are all zero (held out) stay out of the amplitudes and the
+    subtraction (:func:`matched_power`).
+
     Returns ``[(r [m], az [deg], el [deg], A_ref)]`` (at least one).
     """
     az_grid = np.arange(-az_limit, az_limit + 1e-9, 0.5)
     z = np.array(z, dtype=complex)
+    seen = seen_channels(z)
     out, first = [], None
     for _ in range(max(int(count), 1)):
         r0, az0, pw = _grid_peak(z, ctx, min_range, max_range, az_grid)
         first = pw if first is None else first
         if pw < first * 10 ** (-depth_db / 10):
             break
-        r, az, el, amp = refine_point(z, ctx, r0, az0)
+        r, az, el, amp = refine_point(z, ctx, r0, az0, seen=seen)
         if fit_el:
             el_grid = np.arange(-45.0, 45.1, 3.0)
-            pw = [matched_power(z, ctx, r * unit_vectors(az, e))[0] for e in el_grid]
+            pw = [matched_power(z, ctx, r * unit_vectors(az, e), seen)[0] for e in el_grid]
             r, az, el, amp = refine_point(z, ctx, r, az, el_grid[int(np.argmax(pw))],
-                                          fit_el=True)
+                                          fit_el=True, seen=seen)
         out.append((r, az, el, amp))
-        z -= amp * np.exp(1j * ref_phase_np(ctx, *(2 * [r * unit_vectors(az, el)])))
+        z -= amp * np.exp(1j * ref_phase_np(ctx, *(2 * [r * unit_vectors(az, el)]))) \
+            * seen[..., None]
     return out
 
 
