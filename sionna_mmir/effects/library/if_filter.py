@@ -9,17 +9,17 @@ signal sees ``H(f)`` with ``H(-f) = conj(H(f))``; in the range domain::
     H_hp(f_k) := mean of H_hp over the bin [f_k - f_s/2N, f_k + f_s/2N]
     H_lp(f) = 1 / prod_{i=1..n} (j f / f_lp - p_i),   p_i = exp(j pi (2 i + n - 1) / (2 n))
 
-(``n``-th order Butterworth, ``|H_lp|^2 = 1 / (1 + (f / f_lp)^{2 n})``, with its
-phase).  TI's single-chip front ends have two high-pass stages (HPF1
+(``n``-th order Butterworth, ``|H_lp|^2 = 1 / (1 + (f / f_lp)^{2 n})``, with
+its phase).  TI's single-chip front ends have two high-pass stages (HPF1
 175-700 kHz, HPF2 350 kHz-2.8 MHz); the second corner at its lower bound (a
-thousandth of a bin) leaves one.  Each high-pass stage is averaged over each bin (``1 + j a [ln(a + j u)]``
-from ``u = k - 1/2`` to ``k + 1/2``, ``a = f_hp`` in bins): with the point
-value the DC bin would be nulled for any corner, even far below one bin,
-removing an off-bin tone's leakage there; the average tends to 1 as
-``f_hp -> 0`` and to ``H_hp(f_k)`` for corners of a few bins.  ``f_k`` is the
-bin's physical beat frequency in the band ``[band_start f_s, (band_start + 1)
-f_s)`` (default ``-0.1``: targets up to ``0.9 max_range`` are positive
-frequencies, near-DC leakage negative; see
+thousandth of a bin) leaves one.  Each high-pass stage is averaged over each
+bin (``1 + j a [ln(a + j u)]`` from ``u = k - 1/2`` to ``k + 1/2``, ``a =
+f_hp`` in bins): with the point value the DC bin would be nulled for any
+corner, even far below one bin, removing an off-bin tone's leakage there; the
+average tends to 1 as ``f_hp -> 0`` and to ``H_hp(f_k)`` for corners of a few
+bins.  ``f_k`` is the bin's physical beat frequency in the band ``[band_start
+f_s, (band_start + 1) f_s)`` (default ``-0.1``: targets up to ``0.9
+max_range`` are positive frequencies, near-DC leakage negative; see
 :func:`~._sensor_common.band_frequencies`).  The high-pass suppresses the
 Tx-Rx coupling and near-range clutter, the low-pass rolls off far range.
 
@@ -47,14 +47,14 @@ free decay, so ``y = y_ss + (u(0) - y_ss(0)) exp(-w t)``.  Through two stages
 
 (the last fraction, symmetric in the two poles, written as ``e^{-w_l t} (1 -
 w_h t phi((w_h - w_l) t))`` with ``w_l <= w_h`` the lower and higher pole and
-``phi(x) = (1 - e^{-x}) / x``: finite at ``w_1 = w_2`` and free of overflow), with ``t`` the
-sample times from the window's first sample and ``a`` (``settled``) the share
-of the transient already gone: 0 for a filter switched on at the window, 1
-in steady state; ``a = 1 - exp(-w t_s)`` for one stage switched on ``t_s``
-before the window.  The low-pass's own transient (a corner near ``f_s``) is
-left out.  A strong tone below the corner (Tx->Rx leakage) leaves a
-transient over the first samples of every chirp that carries more energy
-than its settled output.
+``phi(x) = (1 - e^{-x}) / x``: finite at ``w_1 = w_2`` and free of overflow),
+with ``t`` the sample times from the window's first sample and ``a``
+(``settled``) the share of the transient already gone: 0 for a filter switched
+on at the window, 1 in steady state; ``a = 1 - exp(-w t_s)`` for one stage
+switched on ``t_s`` before the window.  The low-pass's own transient (a corner
+near ``f_s``) is left out.  A strong tone below the corner (Tx->Rx leakage)
+leaves a transient over the first samples of every chirp that carries more
+energy than its settled output.
 
 Receiver noise.  Thermal noise of the LNA and mixer passes the same
 filters, so a fraction ``rho`` of the white floor ``sigma^2`` (the rest is
@@ -354,9 +354,10 @@ class IFFilter(Effect):
         Dirichlet kernel) and ``<B_k, y> = sum_rows conj(Xe_k) Ye_k / n`` (``Ye``
         the DFT of the data placed in the window), so each grid point costs
         one ``n x n`` quadratic form: the explained energy
-        ``|H^H v|^2 / H^H G H``.  With the same row extension as the forward model, off-bin tones are filtered in
-        steady state here too (a plain per-bin ratio of DFTs confuses the
-        high-pass's phase with a low-pass delay).
+        ``|H^H v|^2 / H^H G H``.  With the same row extension as the forward
+        model, off-bin tones are filtered in steady state here too (a plain
+        per-bin ratio of DFTs confuses the high-pass's phase with a low-pass
+        delay).
         """
         N = ctx.radar.num_samples
         ext = self.extension
@@ -498,7 +499,8 @@ class IFFilter(Effect):
 
 
 def _scaled(z, k, d):
-    """``k d z`` for a complex pair ``z [..., 1]``, real scalar ``k`` and real decay ``d [..., N]``."""
+    """``k d z`` for a complex pair ``z [..., 1]``, a real scalar ``k`` and a real
+    decay ``d [..., N]``."""
     return (z[0] * (k * d), z[1] * (k * d))
 
 
