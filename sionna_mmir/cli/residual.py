@@ -9,8 +9,6 @@ writes the report folder (JSON, Markdown, PNGs; see
 """
 from __future__ import annotations
 
-import numpy as np
-
 from ..errors import ConfigError
 from .args import FORMATTER, add_out
 

@@ -8,7 +8,7 @@ predicts held-out channels better (:class:`~sionna_mmir.residual.diagnosis.Diagn
 """
 from __future__ import annotations
 
-from ..residual.diagnosis import DiagnosisRun
+from ..residual.diagnosis import BIC, DiagnosisRun
 
 
 class Diagnosis:
@@ -26,7 +26,7 @@ class Diagnosis:
         ``progress(event, name)`` (``"scored"`` / ``"adopted"``).
     """
 
-    def __init__(self, model, candidates=None, folds: int = 3, penalty="bic",
+    def __init__(self, model, candidates=None, folds: int = 3, penalty=BIC,
                  seed: int = 0, progress=None):
         from .loop import default_candidates
 

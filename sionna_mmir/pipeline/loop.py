@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError, InputValueError
-from ..residual.diagnosis import check_penalty
+from ..residual.diagnosis import BIC, check_penalty
 from .radar_model import RadarModel, loop_solver_options
 
 #: format tag of the loop's checkpoint file
@@ -110,7 +110,7 @@ class LoopRequest:
     solver: object = dataclasses.field(default_factory=loop_solver_options)
     effects: object = None
     folds: int = 3
-    penalty: object = "bic"
+    penalty: object = BIC
     max_objects: int = 8
     resume: bool = False
     overwrite: bool = False
