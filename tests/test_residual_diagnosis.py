@@ -483,3 +483,93 @@ def test_19_a_model_that_overflows_scores_far_below_zero_instead_of_failing():
     assert np.all(_profiled_cells(r2, np.ones_like(r2), np.zeros_like(r2)) == 1e30)
     ok = _profiled_cells(np.ones((3, 8)), np.ones((3, 8)), np.zeros((3, 8)))
     assert np.allclose(ok, 1.0)                            # log(1) + 1
+
+
+def test_20_a_mean_candidate_must_lower_the_held_out_residual_energy():
+    """``_rank_round`` on fixed scores: a mean candidate whose held-out
+    residual energy rises is not acceptable however many nats it gains (it
+    raised the predicted variance instead of explaining the residual); a
+    vetoed one is ranked but not chosen; variance effects are not held to
+    it.  On data, a planted per-channel gain lowers the held-out residual
+    energy (truth: the planted gains)."""
+    from sionna_mmir.residual.diagnosis import CandidateScore, _rank_round, rank_candidates
+
+    class Tiers:
+        model = type("M", (), {"ctx": None})()
+
+        def __init__(self, scores):
+            self.scores = scores
+
+        def rank(self, group, penalty, maxiter, progress):
+            return [self.scores[e.name] for e in group if e.name in self.scores]
+
+        def on_one_scale(self, ranking, best, *args):
+            return ranking, best
+
+    pool = [ChannelGain(), MissingScatterer(), NoiseFloor()]
+    for c in pool:
+        c.gain_floor = lambda ctx: 0.0
+
+    def s(name, gain, db):
+        return CandidateScore(name, 1, gain, gain / 1e4, gain - 1, [gain], energy_change_db=db)
+
+    scores = {"channel_gain": s("channel_gain", 1000, +0.5),
+              "missing_scatterer": s("missing_scatterer", 500, -0.2),
+              "noise_floor": s("noise_floor", 800, +0.3)}
+    _, best = _rank_round(Tiers(scores), pool, 1.0, 10, None, 0.0, set())
+    assert best.name == "missing_scatterer"
+    _, best = _rank_round(Tiers(scores), pool, 1.0, 10, None, 0.0, set(), {"missing_scatterer"})
+    assert best.name == "noise_floor"                    # the variance tier comes next
+
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    g = np.random.default_rng(5)
+    gains = 1 + 0.3 * (g.normal(size=(3, 1)) + 1j * g.normal(size=(1, 4)))
+    y = clean * gains[None, :, :, None, None] + _noise(clean.shape, 0.01, 6)
+    m = EffectModel(ctx, y, clean)
+    m.fit(trainable=[])
+    (c,) = rank_candidates(m, [ChannelGain()], cv_folds(ctx.shape[:4], 3))
+    assert c.gain > 0 and c.energy_change_db < -3.0, c
+
+
+def test_21_an_adoption_whose_joint_refit_worsens_the_mean_is_undone():
+    """When the joint refit after an adoption raises the residual energy, the
+    model goes back to its state before the adoption, the effect is vetoed
+    for the round, reported, and the next acceptable candidate is adopted
+    instead (truth: the planted missing point; the overshoot is forced)."""
+    from sionna_mmir.residual import diagnosis as dg
+    from sionna_mmir.residual.diagnosis import DiagnosisRun
+
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    extra = synthesize_adc(radar, np.array([0.5]), np.array([2 * 2.6 / C]))[None]
+    g = np.random.default_rng(7)
+    gains = 1 + 0.5 * (g.normal(size=(3, 1)) + 1j * g.normal(size=(1, 4)))
+    y = (clean + extra) * gains[None, :, :, None, None] + _noise(clean.shape, 0.01, 8)
+    real_adopt, events = dg._adopt, []
+
+    def overshooting(model, eff, maxiter):
+        comp = real_adopt(model, eff, maxiter)
+        if eff.name == "missing_scatterer":          # force a worse mean
+            model.nuisance.values["gain"] = model.nuisance.values["gain"] * 3.0
+        return comp
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(dg, "_adopt", overshooting)
+    try:
+        run = DiagnosisRun(EffectModel(ctx, y, clean), [MissingScatterer(), ChannelGain()],
+                           progress=lambda e, n: events.append((e, n)))
+        before = run.model.residual_energy()
+        a = run.step()
+    finally:
+        mp.undo()
+    assert [v["name"] for v in run.vetoes] == ["missing_scatterer"]     # ranked first, undone
+    assert ("vetoed", "missing_scatterer") in events
+    assert a.name == "channel_gain"
+    assert a.before["residual_energy_db"] == pytest.approx(run.first["residual_energy_db"])
+    assert run.vetoes[0]["residual_energy_db"][1] > run.vetoes[0]["residual_energy_db"][0]
+    assert run.model.residual_energy() < before
+    assert [c.effect.name for c in run.model.components] == ["channel_gain"]
+    assert run.result().settings["vetoed"] == run.vetoes

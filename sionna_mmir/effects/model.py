@@ -398,6 +398,13 @@ class EffectModel:
         """Measured minus mean model, capture units, ``[F, T, R, C, N]``."""
         return (self.y - self.mean_variance_numpy()[0]) * self.scale
 
+    def residual_energy(self, cells=None) -> float:
+        """``sum |y - x|^2`` over ``cells`` (boolean ``[F, T, R, C]``, None: all),
+        normalised units: the mean model's squared error, whatever its
+        variance model."""
+        r = self.y - self.mean_variance_numpy()[0]
+        return float(np.sum(np.abs(r if cells is None else r[np.asarray(cells, bool)]) ** 2))
+
     # ---------------------------------------------------------------- loss
     def mask_tensor(self, cells=None):
         """0/1 weights ``[F, T, R, C, N]`` from a boolean ``[F, T, R, C]`` cell mask (None: all)."""

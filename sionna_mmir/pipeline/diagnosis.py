@@ -23,7 +23,7 @@ class Diagnosis:
     folds, penalty, seed
         Cross-validation folds, nats per parameter (``"bic"``: ``ln(n) / 2``), fold seed.
     progress : callable, optional
-        ``progress(event, name)`` (``"scored"`` / ``"adopted"``).
+        ``progress(event, name)`` (``"scored"`` / ``"adopted"`` / ``"vetoed"``).
     """
 
     def __init__(self, model, candidates=None, folds: int = 3, penalty=BIC,

@@ -33,7 +33,7 @@ from ..residual.diagnosis import BIC, check_penalty
 from .radar_model import RadarModel, loop_solver_options
 
 #: format tag of the loop's checkpoint file
-STATE_FORMAT = ("sionna_mmir.loop_state", 1)
+STATE_FORMAT = ("sionna_mmir.loop_state", 2)
 
 
 #: a first fit is flagged as "barely overlapping" when it leaves this much of the
@@ -320,7 +320,7 @@ class Loop:
             bar.set_postfix_str(f"scored {name}")
             bar.update(1)
         else:
-            bar.write(f"adopted {name}")
+            bar.write(f"{event} {name}")
 
     def _check_overlap(self):
         """Warn when the scene explains little of the capture (wrong frame?)."""

@@ -78,7 +78,8 @@ def loop_document(loop) -> dict:
             "unexplained": localise(model.ctx, y - model.mean_adc()),
             "unexplained_domains": d.unexplained,
             "last_candidates": [c.to_dict() for c in d.last_candidates],
-            "stop_reason": d.settings.get("stop_reason"), "settings": d.settings,
+            "stop_reason": d.settings.get("stop_reason"), "vetoed": d.settings.get("vetoed", []),
+            "settings": d.settings,
             "timings": {k: round(v, 2) for k, v in loop.timings.items()}}
 
 
@@ -93,15 +94,19 @@ def loop_markdown(doc: dict) -> str:
          f"Radar {doc['radar']}; scene: {doc['scene']} ({', '.join(doc['objects'])}).", "",
          "## Error before and after", "", head, _row("first (scene refined)", doc["first"])]
     L += [_row(f"+ {a['name']} ({a['side']})", a["after"]) for a in doc["adoptions"]]
+    L += [f"- vetoed {v['name']} in round {v['round'] + 1}: its joint refit took the residual "
+          f"from {v['residual_energy_db'][0]:.2f} to {v['residual_energy_db'][1]:.2f} dB"
+          for v in doc["vetoed"]]
     L += ["", f"Stopped: {doc['stop_reason']}.", "",
           f"Sensor effects adopted: {', '.join(doc['sensor_effects']) or 'none'}.", "",
           "## Scene mismatch (absorbed by the scene refit)", "", "```",
           json.dumps(doc["scene_mismatch"], indent=1)[:3000], "```", ""]
     for k, a in enumerate(doc["adoptions"]):
         L += [f"## Adoption {k + 1}: {a['name']}", "", a["verdict"], "",
-              "| candidate | params | held-out gain | score |", "|---|---|---|---|"]
-        L += [f"| {c['name']} | {c['n_params']} | {c['gain']:.1f} | {c['score']:.1f} |"
-              for c in a["candidates"][:8]]
+              "| candidate | params | held-out gain | score | held-out residual change [dB] |",
+              "|---|---|---|---|---|"]
+        L += [f"| {c['name']} | {c['n_params']} | {c['gain']:.1f} | {c['score']:.1f} | "
+              f"{c.get('energy_change_db', 0.0):+.3f} |" for c in a["candidates"][:8]]
         L += ["", f"![residual](adopt_{k + 1}_{a['name']}.png)", ""]
     u = doc["unexplained"]
     L += ["## Unexplained", "",
