@@ -489,8 +489,8 @@ def test_20_a_mean_candidate_must_lower_the_held_out_residual_energy():
     """``_rank_round`` on fixed scores: a mean candidate whose held-out
     residual energy rises is not acceptable however many nats it gains (it
     raised the predicted variance instead of explaining the residual); a
-    vetoed one is ranked but not chosen; variance effects are not held to
-    it.  On data, a planted per-channel gain lowers the held-out residual
+    vetoed one is ranked but not chosen; variance effects and effects that
+    shape the noise (an IF filter) are not held to it.  On data, a planted per-channel gain lowers the held-out residual
     energy (truth: the planted gains)."""
     from sionna_mmir.residual.diagnosis import CandidateScore, _rank_round, rank_candidates
 
@@ -520,6 +520,13 @@ def test_20_a_mean_candidate_must_lower_the_held_out_residual_energy():
     assert best.name == "missing_scatterer"
     _, best = _rank_round(Tiers(scores), pool, 1.0, 10, None, 0.0, set(), {"missing_scatterer"})
     assert best.name == "noise_floor"                    # the variance tier comes next
+    from sionna_mmir.effects.library.if_filter import IFFilter
+
+    pool.append(IFFilter())                              # shapes the noise: not held to it
+    pool[-1].gain_floor = lambda ctx: 0.0
+    scores["if_filter"] = s("if_filter", 1200, +0.2)
+    _, best = _rank_round(Tiers(scores), pool, 1.0, 10, None, 0.0, set())
+    assert best.name == "if_filter"
 
     radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
     ctx = EffectContext(radar)

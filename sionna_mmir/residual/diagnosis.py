@@ -84,7 +84,8 @@ class CandidateScore:
     #: share of the transmit slots (frame, Tx, chirp) whose held-out NLL the candidate lowers
     slot_share: float = 1.0
     #: change of the held-out residual energy ``sum |Y - X|^2`` [dB] (mean-kind
-    #: candidates; 0 for variance effects, which do not predict the mean)
+    #: candidates; 0 for variance effects, which do not predict the mean); a
+    #: mean-only candidate (:func:`_mean_only`) is acceptable only when it is <= 0
     energy_change_db: float = 0.0
 
     def to_dict(self) -> dict:
@@ -433,6 +434,13 @@ def _averaged_scoring(eff) -> bool:
     return eff.chirp_static and not getattr(eff, "shapes_noise", False)
 
 
+def _mean_only(eff) -> bool:
+    """Whether ``eff`` changes the mean model only (no variance, no noise
+    shape): such an effect must lower the mean model's squared error
+    (:func:`_mean_worse`, :attr:`CandidateScore.energy_change_db`)."""
+    return eff.kind != "variance" and not getattr(eff, "shapes_noise", False)
+
+
 #: a variance effect must lower the held-out NLL in at least this share of the
 #: transmit slots (:func:`slot_share`): it models stationary noise
 MIN_SLOT_SHARE = 0.5
@@ -501,11 +509,12 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
     floor = {c.name: max(min_gain, c.gain_floor(tiers.model.ctx)) for c in pool}
     kinds_of = {c.name: c.kind for c in pool}
     scene_side = {c.name: c.scene_side for c in pool}
+    mean_only = {c.name for c in pool if _mean_only(c)}
 
     def ok(c):
         variance = kinds_of.get(c.name) == "variance"
         stationary = not variance or c.slot_share >= MIN_SLOT_SHARE
-        predicts_mean = variance or c.energy_change_db <= 0.0
+        predicts_mean = c.name not in mean_only or c.energy_change_db <= 0.0
         return (c.score > 0 and c.gain_per_sample >= floor.get(c.name, min_gain) and stationary
                 and predicts_mean and c.name not in vetoed)
 
@@ -580,8 +589,11 @@ def _mean_worse(eff, before: dict, after: dict) -> bool:
     really there lowers the squared error of the mean model, on held-out
     channels (:attr:`CandidateScore.energy_change_db`, required <= 0 in the
     ranking) and after the joint refit on all cells (checked here).  Variance
-    effects only reweight the mean fit and are not held to it."""
-    if eff.kind == "variance":
+    effects only reweight the mean fit and are not held to it, nor are mean
+    effects that also shape the receiver noise (an IF filter: most of its
+    signature is the noise notch, and its fit trades a little mean misfit
+    for it)."""
+    if not _mean_only(eff):
         return False
     return after["residual_energy_db"] > before["residual_energy_db"] + MEAN_GUARD_DB
 
