@@ -535,27 +535,48 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
 
 
 def _adopt(model, eff, maxiter):
-    """Add ``eff`` and refit everything jointly (backfitting earlier effects
-    after a mean effect); on chirp-averaged data when every component allows
-    it (then the full model takes the values and refits its noise floor;
-    chirp-varying components held fixed there are refitted jointly with the
-    rest on the full data).  Returns the new component."""
+    """Add ``eff``, fit it alone from its start, then refit everything jointly
+    (backfitting earlier effects after a mean effect); on chirp-averaged data
+    when every component allows it (then the full model takes the values and
+    refits its noise floor; chirp-varying components held fixed there are
+    refitted jointly with the rest on the full data).  An effect fitted on
+    every chirp (an IF filter) is backfitted on the chirp average too: the
+    earlier effects' signatures are in the mean, at ``1 / C`` of the cost.
+    Returns the new component."""
     static = _averaged_scoring(eff) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
+    work.fit(trainable=[len(work.components) - 1], maxiter=maxiter)
     work.fit(maxiter=2 * maxiter)
-    if eff.kind != "variance":      # a noise model only reweights the mean fit
+    if eff.kind == "variance":      # a noise model only reweights the mean fit
+        pass
+    elif work is model and model.can_average() and model.ctx.shape[3] > 1:
+        avg = model.chirp_averaged(freeze=True)
+        listed = avg.components
+        new = _backfit(avg, avg.components[_position(model, comp)], maxiter)
+        if avg.components is not listed:            # a trial was kept
+            comp = _carry_back(model, avg, new, maxiter, joint=True)
+        return comp
+    else:
         comp = _backfit(work, comp, maxiter)
     if work is not model:                   # the values carry over
-        k = _position(work, comp)
-        source = {id(c.effect): c for c in model.components}
-        model.components = [source[id(c.effect.source)] if _frozen(c) else _copy_component(c)
-                            for c in work.components]
-        model.nuisance.values["gain"] = np.array(work.nuisance.values["gain"], copy=True)
-        frozen = any(_frozen(c) for c in work.components)
-        model.fit(trainable=None if frozen else [], maxiter=2 * maxiter if frozen else maxiter)
-        comp = model.components[k]
+        comp = _carry_back(model, work, comp, maxiter)
     return comp
+
+
+def _carry_back(model, work, comp, maxiter, joint=False):
+    """Give ``model`` the component values fitted on its chirp-averaged
+    ``work`` model and refit it on the full data: the nuisance only, or
+    everything when ``work`` held chirp-varying components fixed or with
+    ``joint``.  Returns ``comp``'s counterpart in ``model``."""
+    k = _position(work, comp)
+    source = {id(c.effect): c for c in model.components}
+    model.components = [source[id(c.effect.source)] if _frozen(c) else _copy_component(c)
+                        for c in work.components]
+    model.nuisance.values["gain"] = np.array(work.nuisance.values["gain"], copy=True)
+    full = joint or any(_frozen(c) for c in work.components)
+    model.fit(trainable=None if full else [], maxiter=2 * maxiter if full else maxiter)
+    return model.components[k]
 
 
 def _frozen(comp) -> bool:
