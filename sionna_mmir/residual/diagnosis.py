@@ -535,18 +535,17 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
 
 
 def _adopt(model, eff, maxiter):
-    """Add ``eff``, fit it alone from its start, then refit everything jointly
-    (backfitting earlier effects after a mean effect); on chirp-averaged data
-    when every component allows it (then the full model takes the values and
-    refits its noise floor; chirp-varying components held fixed there are
-    refitted jointly with the rest on the full data).  An effect fitted on
-    every chirp (an IF filter) is backfitted on the chirp average too: the
-    earlier effects' signatures are in the mean, at ``1 / C`` of the cost.
-    Returns the new component."""
+    """Add ``eff`` and refit everything jointly (backfitting earlier effects
+    after a mean effect); on chirp-averaged data when every component allows
+    it (then the full model takes the values and refits its noise floor;
+    chirp-varying components held fixed there are refitted jointly with the
+    rest on the full data).  An effect fitted on every chirp (an IF filter, a
+    mover) is backfitted on the chirp average too: the earlier effects'
+    signatures are in the mean, at ``1 / C`` of the cost.  Returns the new
+    component."""
     static = _averaged_scoring(eff) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
-    work.fit(trainable=[len(work.components) - 1], maxiter=maxiter)
     work.fit(maxiter=2 * maxiter)
     if eff.kind == "variance":      # a noise model only reweights the mean fit
         pass
