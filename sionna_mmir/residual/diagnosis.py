@@ -547,20 +547,25 @@ def _adopt(model, eff, maxiter):
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     work.fit(maxiter=2 * maxiter)
-    if eff.kind == "variance":      # a noise model only reweights the mean fit
-        pass
-    elif work is model and model.can_average() and model.ctx.shape[3] > 1:
-        avg = model.chirp_averaged(freeze=True)
-        listed = avg.components
-        new = _backfit(avg, avg.components[_position(model, comp)], maxiter)
-        if avg.components is not listed:            # a trial was kept
-            comp = _carry_back(model, avg, new, maxiter, joint=True)
-        return comp
-    else:
+    if eff.kind != "variance":      # a noise model only reweights the mean fit
+        if work is model and model.can_average() and model.ctx.shape[3] > 1:
+            return _backfit_on_average(model, comp, maxiter)
         comp = _backfit(work, comp, maxiter)
     if work is not model:                   # the values carry over
         comp = _carry_back(model, work, comp, maxiter)
     return comp
+
+
+def _backfit_on_average(model, comp, maxiter):
+    """:func:`_backfit` on the chirp average of ``model`` (``comp`` fitted on
+    every chirp); when a trial is kept, ``model`` takes its values and is
+    refitted jointly on every chirp.  Returns ``comp``'s current counterpart."""
+    avg = model.chirp_averaged(freeze=True)
+    listed = avg.components
+    new = _backfit(avg, avg.components[_position(model, comp)], maxiter)
+    if avg.components is listed:                     # no trial was kept
+        return comp
+    return _carry_back(model, avg, new, maxiter, joint=True)
 
 
 def _carry_back(model, work, comp, maxiter, joint=False):
@@ -603,9 +608,9 @@ def _mean_worse(eff, before: dict, after: dict) -> bool:
     The held-out likelihood is the adoption test, but beside adopted variance
     effects (a phase-noise skirt, a coloured floor) a mean effect can gain
     likelihood by raising the predicted variance where the residual is large
-    instead of explaining it: a Tx->Rx leakage fitted beside phase noise on a
-    measured capture gained 1 352 held-out nats while its tones overshot the
-    capture's leakage (residual -6.8 -> +4.3 dB).  A mean effect that is
+    instead of explaining it (a Tx->Rx leakage fitted beside phase noise on a
+    measured capture can gain thousands of held-out nats while its tones
+    overshoot the capture's leakage).  A mean effect that is
     really there lowers the squared error of the mean model, on held-out
     channels (:attr:`CandidateScore.energy_change_db`, required <= 0 in the
     ranking) and after the joint refit on all cells (checked here).  Variance
@@ -681,26 +686,14 @@ class DiagnosisRun:
                                         self.min_gain, self.screened, vetoed)
             self.ranking = ranking
             if best is None:
-                self.stop_reason = ("no candidate improves the held-out likelihood and the "
-                                    "held-out residual energy" + (
-                                        f" (vetoed after a worse joint refit: "
-                                        f"{', '.join(sorted(vetoed))})" if vetoed else ""))
+                self.stop_reason = _stop_reason(vetoed)
                 return None
             eff = next(c for c in self.pool if c.name == best.name)
             before, res_before = self.current, self.model.residual()
-            saved = self.model.copy()
-            comp = _adopt(self.model, eff, self.maxiter)
-            self.current = _current_metrics(self.model)
-            if not _mean_worse(eff, before, self.current):
+            comp = self._adopt_or_undo(eff)
+            if comp is not None:
                 break
-            self.vetoes.append({"round": len(self.adoptions), "name": eff.name,
-                                "residual_energy_db": [before["residual_energy_db"],
-                                                       self.current["residual_energy_db"]]})
-            self.model.components, self.model.nuisance = saved.components, saved.nuisance
-            self.current = before
             vetoed.add(eff.name)
-            if self.progress is not None:
-                self.progress("vetoed", eff.name)
         a = Adoption(name=eff.name, round=len(self.adoptions), candidates=ranking, before=before,
                      after=self.current, params=comp.effect.summary(comp.values, self.model.ctx),
                      residual_before=res_before.astype(np.complex64),
@@ -711,6 +704,23 @@ class DiagnosisRun:
         if self.progress is not None:
             self.progress("adopted", eff.name)
         return a
+
+    def _adopt_or_undo(self, eff):
+        """Adopt ``eff`` (:func:`_adopt`); undo it and return None when the
+        joint refit made the mean model worse (:func:`_mean_worse`)."""
+        before, saved = self.current, self.model.copy()
+        comp = _adopt(self.model, eff, self.maxiter)
+        self.current = _current_metrics(self.model)
+        if not _mean_worse(eff, before, self.current):
+            return comp
+        self.vetoes.append({"round": len(self.adoptions), "name": eff.name,
+                            "residual_energy_db": [before["residual_energy_db"],
+                                                   self.current["residual_energy_db"]]})
+        self.model.components, self.model.nuisance = saved.components, saved.nuisance
+        self.current = before
+        if self.progress is not None:
+            self.progress("vetoed", eff.name)
+        return None
 
     def result(self) -> Diagnosis:
         """The :class:`Diagnosis` so far."""
@@ -730,6 +740,13 @@ class DiagnosisRun:
                          unexplained=unexplained, settings=settings,
                          first_mean=self.first_mean * model.scale,
                          first_variance=self.first_var * model.scale ** 2)
+
+
+def _stop_reason(vetoed) -> str:
+    why = "no candidate improves the held-out likelihood and the held-out residual energy"
+    if vetoed:
+        why += f" (vetoed after a worse joint refit: {', '.join(sorted(vetoed))})"
+    return why
 
 
 def _check_candidates(candidates, model) -> list:
