@@ -539,16 +539,20 @@ def _adopt(model, eff, maxiter):
     after a mean effect); on chirp-averaged data when every component allows
     it (then the full model takes the values and refits its noise floor;
     chirp-varying components held fixed there are refitted jointly with the
-    rest on the full data).  An effect fitted on every chirp (an IF filter, a
-    mover) is backfitted on the chirp average too: the earlier effects'
-    signatures are in the mean, at ``1 / C`` of the cost.  Returns the new
-    component."""
+    rest on the full data).  An effect fitted on every chirp for its noise
+    shape (an IF filter) is backfitted on the chirp average: the earlier
+    effects' signatures are in the mean, at ``1 / C`` of the cost.  A mover
+    is backfitted on every chirp: backfitted on the average (where it is
+    held fixed) and refitted jointly only when a trial was kept, a mover
+    left part of a Tx droop for the next one, and the outside-the-library
+    droop run chained more than 15 movers instead of 2.  Returns the new component."""
     static = _averaged_scoring(eff) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     work.fit(maxiter=2 * maxiter)
     if eff.kind != "variance":      # a noise model only reweights the mean fit
-        if work is model and model.can_average() and model.ctx.shape[3] > 1:
+        if work is model and getattr(eff, "shapes_noise", False) and model.can_average() \
+                and model.ctx.shape[3] > 1:
             return _backfit_on_average(model, comp, maxiter)
         comp = _backfit(work, comp, maxiter)
     if work is not model:                   # the values carry over
