@@ -14,11 +14,16 @@
     per adopted effect: ``name``, ``side`` (scene / sensor), ``verdict``,
     ``before``, ``after``, ``unexplained`` (the residual's excess over the
     noise floor after it), its parameters and the ranking that chose it
+    (per candidate: held-out gain, score and ``energy_change_db``, the
+    held-out residual energy change)
 ``unexplained``
     where the final residual exceeds the noise floor (range / beat
     frequency, channels, chirps, samples)
 ``stop_reason``
     why the diagnosis ended
+``vetoed``
+    adoptions undone because their joint refit raised the residual energy
+    (``round``, ``name``, ``residual_energy_db`` before and after)
 ``timings``
     seconds per stage
 
