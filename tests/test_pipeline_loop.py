@@ -40,9 +40,12 @@ def test_01_planted_gains_adopted_and_reported(report):
     with open(os.path.join(out, "report.json")) as f:
         saved = json.load(f)
     assert {"first", "final", "adoptions", "scene_mismatch", "unexplained",
-            "stop_reason"} <= set(saved)
+            "stop_reason", "vetoed"} <= set(saved)
     a = saved["adoptions"][0]
     assert {"name", "side", "verdict", "before", "after", "unexplained"} <= set(a)
+    # every adopted mean-only effect lowered the held-out residual energy
+    chosen = next(c for c in a["candidates"] if c["name"] == a["name"])
+    assert chosen["energy_change_db"] < 0, chosen
 
 
 def test_02_overlap_warning_needs_both_the_adc_residual_and_the_ra_map():
