@@ -67,7 +67,7 @@ import numpy as np
 
 from ..errors import ConfigError, InputValueError
 from ..effects.model import EffectModel
-from .analysis import json_view, residual_domains
+from .analysis import _db, json_view, residual_domains
 from .scoring import score
 
 
@@ -306,15 +306,11 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty=BIC,
                                   fold_gains=[float(g) for g in gains],
                                   slot_share=(slot_share(cell_gains, [~b[0] for b in bases])
                                               if cell_gains else 1.0),
-                                  energy_change_db=_db_ratio(energy[1], energy[0])))
+                                  energy_change_db=(_db(energy[1] / energy[0])
+                                                    if energy[0] > 0 else 0.0)))
         if progress is not None:
             progress(eff.name)
     return sorted(out, key=lambda c: c.score, reverse=True)
-
-
-def _db_ratio(a: float, b: float) -> float:
-    """``10 log10(a / b)``; 0 when ``b`` is 0 (nothing to compare)."""
-    return float(10 * np.log10(max(a, 1e-300) / b)) if b > 0 else 0.0
 
 
 def _restart(model: EffectModel, best: float, maxiter: int) -> float:
@@ -542,10 +538,9 @@ def _adopt(model, eff, maxiter):
     rest on the full data).  An effect fitted on every chirp for its noise
     shape (an IF filter) is backfitted on the chirp average: the earlier
     effects' signatures are in the mean, at ``1 / C`` of the cost.  A mover
-    is backfitted on every chirp: backfitted on the average (where it is
-    held fixed) and refitted jointly only when a trial was kept, a mover
-    left part of a Tx droop for the next one, and the outside-the-library
-    droop run chained more than 15 movers instead of 2.  Returns the new component."""
+    is backfitted on every chirp: on the average it would be held fixed, so
+    its own refit would wait for a kept trial and leave part of a
+    chirp-varying residual to the next mover.  Returns the new component."""
     static = _averaged_scoring(eff) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
