@@ -39,7 +39,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-def _run_case(case, work, chirps):
+def _run_case(case, work, chirps, workers="auto"):
     from sionna_mmir.independent.undeclared import write_coloradar_run
     from sionna_mmir.pipeline import LoopRequest, run_loop
 
@@ -51,7 +51,7 @@ def _run_case(case, work, chirps):
     t0 = time.perf_counter()
     doc = run_loop(LoopRequest(capture=str(run), out=os.path.join(work, "report"),
                                meshes=meshes, materials=case.materials, sensor=sensor,
-                               progress=False))
+                               progress=False, workers=workers))
     return doc, time.perf_counter() - t0
 
 
@@ -211,6 +211,8 @@ def main(argv=None) -> int:
     p.add_argument("--radar", default=None, choices=["cascade", "awr1843"],
                    help="the sensor (default: cascade for full, awr1843 for fast)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", default="auto",
+                   help="processes per loop for a round's fits (default: one per core)")
     p.add_argument("--work", default="/tmp/sionna_mmir_undeclared_suite")
     p.add_argument("--out", default=os.path.join(HERE, "undeclared_suite"),
                    help="report folder; rows already in its suite.json for the same radar are "
@@ -231,16 +233,20 @@ def main(argv=None) -> int:
     if args.cases:
         wanted = set(args.cases.split(","))
         kinds = [k for k in kinds if (k if isinstance(k, str) else "+".join(k)) in wanted]
+    from sionna_mmir.residual.workers import check_workers
+
     radar = args.radar or ("cascade" if args.subset == "full" else "awr1843")
     os.makedirs(args.out, exist_ok=True)
     rows = _previous_rows(args.out)
     for kind in kinds:
         case = make_case(kind, seed=args.seed, radar=radar, num_chirps=args.chirps)
         commit = _commit()                  # the code the run starts with
-        doc, wall = _run_case(case, os.path.join(args.work, case.name), args.chirps)
+        doc, wall = _run_case(case, os.path.join(args.work, case.name), args.chirps,
+                               args.workers)
         row = score_case(case, doc)
         row["seconds"], row["radar"], row["chirps"] = wall, radar, case.capture.radar.num_chirps
         row["commit"] = commit
+        row["workers"] = check_workers(args.workers)
         rows = [r for r in rows if (r["case"], r["radar"]) != (case.name, radar)] + [row]
         print(f"{case.name}: adopted {row['adopted']} -> {'ok' if row['ok'] else 'NOT ok'} "
               f"({wall:.0f} s)", flush=True)

@@ -670,3 +670,12 @@ def test_27_loop_refuses_bad_runs_frames_candidates_and_foreign_checkpoints(tmp_
     _refused(capsys, ["loop", cap, wall, "--fit-iterations", "0", "--out", out, "--resume"],
              "loop_state.pkl", "another radar")
     assert not out.exists() and os.listdir(partial) == ["loop_state.pkl"]
+
+
+def test_28_workers_must_be_auto_or_a_positive_integer(tmp_path, inputs, capsys):
+    for value in ("0", "-2", "1.5", "many", ""):
+        _refused(capsys, ["residual", inputs["multi"], "--model", "static", f"--workers={value}",
+                          "--out", tmp_path / "rep"], "--workers")
+        _refused(capsys, ["loop", inputs["cap"], inputs["wall"], f"--workers={value}",
+                          "--out", tmp_path / "loop"], "--workers")
+    assert os.listdir(tmp_path) == []

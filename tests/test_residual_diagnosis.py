@@ -557,8 +557,8 @@ def test_21_an_adoption_whose_joint_refit_worsens_the_mean_is_undone():
     y = (clean + extra) * gains[None, :, :, None, None] + _noise(clean.shape, 0.01, 8)
     real_adopt, events = dg._adopt, []
 
-    def overshooting(model, eff, maxiter):
-        comp = real_adopt(model, eff, maxiter)
+    def overshooting(model, eff, maxiter, fits):
+        comp = real_adopt(model, eff, maxiter, fits)
         if eff.name == "missing_scatterer":          # force a worse mean
             model.nuisance.values["gain"] = model.nuisance.values["gain"] * 3.0
         return comp

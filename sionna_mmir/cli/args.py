@@ -83,6 +83,14 @@ def add_sensor_profile(p) -> None:
                         "frozen to the forward model")
 
 
+def add_workers(p) -> None:
+    """``--workers N|auto``: processes for the independent fits of a diagnosis round."""
+    p.add_argument("--workers", default="auto",
+                   help="processes for the independent fits of a diagnosis round: a number, or "
+                        "'auto' for one per core (default); 1 runs them all in this process. "
+                        "The result does not depend on it")
+
+
 def add_out(p, what: str, required: bool = True, default=None, kind: str = "file") -> None:
     """``--out`` and ``--overwrite``; ``kind`` is ``"file"`` or ``"folder"``
     (checked, and a folder locked, by :func:`output_guard`)."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from ..pipeline.radar_model import loop_solver_options
 from .args import (FORMATTER, add_capture, add_materials, add_out, add_sensor_profile, add_solver,
-                   mesh_names, named, pose, solver_options, waveform)
+                   mesh_names, named, pose, solver_options, waveform, add_workers)
 
 
 def add_parser(sub) -> None:
@@ -39,6 +39,7 @@ def add_parser(sub) -> None:
                    help="nats charged per parameter of a candidate: a number, or 'bic' for "
                         "ln(n)/2 with n the held-out samples (default)")
     p.add_argument("--resume", action="store_true", help="continue a killed run")
+    add_workers(p)
     add_sensor_profile(p)
     p.set_defaults(run=run)
 
@@ -58,7 +59,8 @@ def run(args) -> int:
                       fit_iterations=args.fit_iterations, lr=args.lr, seed=args.seed,
                       solver=solver_options(args), effects=args.effects, folds=args.folds,
                       penalty=args.penalty, resume=args.resume, overwrite=args.overwrite,
-                      waveform=waveform(args), sensor_profile=args.sensor_profile)
+                      waveform=waveform(args), sensor_profile=args.sensor_profile,
+                      workers=args.workers)
     doc = run_loop(req)
     print(f"first: RA corr {doc['first']['ra_correlation']:.3f}, residual "
           f"{doc['first']['residual_energy_db']:.2f} dB")

@@ -10,7 +10,7 @@ writes the report folder (JSON, Markdown, PNGs; see
 from __future__ import annotations
 
 from ..errors import ConfigError
-from .args import FORMATTER, add_out
+from .args import FORMATTER, add_out, add_workers
 
 
 def add_parser(sub) -> None:
@@ -36,6 +36,7 @@ def add_parser(sub) -> None:
                    help="nats charged per parameter of a candidate: a number, or 'bic' for "
                         "ln(n)/2 with n the held-out samples (default)")
     p.add_argument("--seed", type=int, default=0, help="fold seed")
+    add_workers(p)
     p.set_defaults(run=run)
 
 
@@ -64,6 +65,7 @@ def run(args) -> int:
     from ..residual import diagnose
     from ..residual.base_model import base_model
     from ..residual.diagnosis import check_penalty
+    from ..residual.workers import check_workers
     from ..residual.report import write_report
 
     if args.folds < 2:
@@ -71,6 +73,7 @@ def run(args) -> int:
     if args.max_rounds < 0:
         raise ConfigError(f"--max-rounds must be >= 0, got {args.max_rounds}")
     check_penalty(args.penalty)
+    workers = check_workers(args.workers)
     cap = load_capture(args.capture, calib_dir=args.calib_dir)
     frames = frame_slice(args.frames, cap.frames.shape[0])
     y = cap.frames[frames]
@@ -82,7 +85,7 @@ def run(args) -> int:
     bar = tqdm(desc="candidates", unit="fit", leave=False)
     d = diagnose(model, cands, folds=args.folds, max_rounds=args.max_rounds,
                  penalty=args.penalty, seed=args.seed, groups=args.fold_groups,
-                 progress=lambda name: bar.update(1))
+                 progress=lambda name: bar.update(1), workers=workers)
     bar.close()
     write_report(d, args.out, os.path.basename(str(args.capture)), source,
                  overwrite=args.overwrite)

@@ -100,11 +100,7 @@ class EffectModel:
         self.Y = ops.tensor(self.Y_numpy)
         self.b_t = ops.tensor(self.b)
         #: per-object base components (scaled like ``b``) when the context has a basis
-        self.basis_t = None
-        if ctx.basis is not None:
-            k = self.base_gain / self.scale
-            self.basis_t = [ops.tensor(np.broadcast_to(B[None], ctx.shape) * k)
-                            for B in ctx.basis.adc]
+        self.basis_t = self._basis_tensors()
         r = y - self.b
         self.nuisance = Component(
             effect=None,
@@ -230,9 +226,7 @@ class EffectModel:
         new.Y_numpy = np.fft.fft(new.y, axis=-1, norm="ortho")
         new.Y = ops.tensor(new.Y_numpy)
         new.b_t = ops.tensor(new.b)
-        if basis is not None:
-            k = self.base_gain / self.scale
-            new.basis_t = [ops.tensor(np.broadcast_to(B[None], ctx.shape) * k) for B in basis.adc]
+        new.basis_t = new._basis_tensors()
         new.nuisance = _copy_comp(self.nuisance)
         new.components = [parts.get(id(c)) or _copy_comp(c) for c in self.components]
         r = new.y - new.mean_variance_numpy()[0]
@@ -272,6 +266,28 @@ class EffectModel:
 
     def remove(self, comp: Component):
         self.components.remove(comp)
+
+    #: attributes rebuilt from their NumPy sources when a model is unpickled
+    _TENSORS = ("Y", "b_t", "basis_t")
+
+    def __getstate__(self):
+        """Pickle without the Dr.Jit tensors (rebuilt from ``Y_numpy``, ``b``
+        and the context's basis): half the bytes for worker processes."""
+        return {k: v for k, v in self.__dict__.items() if k not in self._TENSORS}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.Y = ops.tensor(self.Y_numpy)
+        self.b_t = ops.tensor(self.b)
+        self.basis_t = self._basis_tensors()
+
+    def _basis_tensors(self):
+        """Per-object base components (scaled like ``b``), or None without a basis."""
+        if self.ctx.basis is None:
+            return None
+        k = self.base_gain / self.scale
+        return [ops.tensor(np.broadcast_to(B[None], self.ctx.shape) * k)
+                for B in self.ctx.basis.adc]
 
     def copy(self) -> "EffectModel":
         """Shallow copy with independent component values (tensors are shared)."""

@@ -24,15 +24,18 @@ class Diagnosis:
         Cross-validation folds, nats per parameter (``"bic"``: ``ln(n) / 2``), fold seed.
     progress : callable, optional
         ``progress(event, name)`` (``"scored"`` / ``"adopted"`` / ``"vetoed"``).
+    workers : int or "auto"
+        Processes for the independent fits of a round (1: this process only).
     """
 
     def __init__(self, model, candidates=None, folds: int = 3, penalty=BIC,
-                 seed: int = 0, progress=None):
+                 seed: int = 0, progress=None, workers=1):
         from .loop import default_candidates
 
         self.model = model
         self.candidates = list(candidates) if candidates is not None else default_candidates()
         self.folds, self.penalty, self.seed, self.progress = folds, penalty, seed, progress
+        self.workers = workers
         self.scene_mismatch = None
 
     def run(self):
@@ -43,7 +46,8 @@ class Diagnosis:
         if not any(c.effect.scene_side for c in self.model.chain.components):
             self.scene_mismatch = self.model.refine()
         run = DiagnosisRun(self.model.chain, self.candidates, folds=self.folds,
-                           penalty=self.penalty, seed=self.seed, progress=self.progress)
+                           penalty=self.penalty, seed=self.seed, progress=self.progress,
+                           workers=self.workers)
         while not run.done:
             run.step()
         return run.result()

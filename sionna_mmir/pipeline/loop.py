@@ -30,6 +30,7 @@ import numpy as np
 
 from ..errors import ConfigError, InputValueError
 from ..residual.diagnosis import BIC, check_penalty
+from ..residual.workers import AUTO, FitPool, check_workers
 from .radar_model import RadarModel, loop_solver_options
 
 #: format tag of the loop's checkpoint file
@@ -92,6 +93,9 @@ class LoopRequest:
     folds, penalty
         Cross-validation folds; nats per candidate parameter (``"bic"``:
         ``ln(n) / 2``, :func:`~sionna_mmir.residual.diagnosis.penalty_per_param`).
+    workers : int or "auto"
+        Processes for the independent fits of a diagnosis round
+        (:class:`~sionna_mmir.residual.workers.FitPool`; ``"auto"``: one per core).
     """
 
     capture: str
@@ -117,6 +121,7 @@ class LoopRequest:
     progress: bool = True
     waveform: dict = dataclasses.field(default_factory=dict)
     sensor_profile: str | None = None
+    workers: object = AUTO
 
 
 def check_request(req: LoopRequest) -> None:
@@ -133,6 +138,7 @@ def check_request(req: LoopRequest) -> None:
     if req.folds < 2:
         raise ConfigError(f"--folds must be >= 2, got {req.folds}")
     check_penalty(req.penalty)
+    check_workers(req.workers)
     if req.effects is not None:
         default_candidates(req.effects)               # unknown or empty lists, up front
 
@@ -244,6 +250,7 @@ class Loop:
             if self.run is not None:
                 self.run.model = self.model.chain
                 self.run.progress = self._progress
+                self.run.fits = FitPool(self.req.workers)
         return self
 
     def fit_scene(self):
@@ -279,7 +286,8 @@ class Loop:
         self.scene_mismatch = self.model.refine()
         self.run = DiagnosisRun(self.model.chain, default_candidates(self.req.effects),
                                 folds=self.req.folds, penalty=self.req.penalty,
-                                seed=self.req.seed, progress=self._progress)
+                                seed=self.req.seed, progress=self._progress,
+                                workers=self.req.workers)
         self.timings["base_s"] = time.perf_counter() - t0
         self._check_overlap()
         self._save_state()

@@ -66,9 +66,10 @@ import dataclasses
 import numpy as np
 
 from ..errors import ConfigError, InputValueError
-from ..effects.model import EffectModel
+from ..effects.model import Component as _Component, EffectModel
 from .analysis import _db, json_view, residual_domains
 from .scoring import score
+from .workers import SERIAL, FitPool, one_blas_thread
 
 
 @dataclasses.dataclass
@@ -180,15 +181,24 @@ def _current_metrics(model: EffectModel) -> dict:
     return score(model.ctx, model.y * s, mean * s, var * s ** 2)
 
 
-def _fold_bases(model: EffectModel, folds, maxiter) -> list:
+def _fold_base_task(shared, k: int, maxiter: int) -> dict:
+    """Worker task: the nuisance values of ``model`` refitted on fold ``k``'s training cells."""
+    model, folds = shared
+    base = model.copy()
+    base.fit(trainable=[], cells=folds[k], maxiter=maxiter)
+    return base.nuisance.values
+
+
+def _fold_bases(model: EffectModel, folds, maxiter, pool=SERIAL) -> list:
     """Per fold: the current model refitted (nuisance only) on the training cells,
     with its held-out NLL total and the number of held-out samples."""
     out = []
-    for train in folds:
+    fitted = pool.map(_fold_base_task, (model, folds), [(k, maxiter) for k in range(len(folds))])
+    for train, values in zip(folds, fitted):
         test = ~train
         n_test = float(test.sum()) * model.ctx.shape[-1]
         base = model.copy()
-        base.fit(trainable=[], cells=train, maxiter=maxiter)
+        base.nuisance.values = values
         out.append((train, base, base.nll_profiled(test) * n_test, n_test))
     return out
 
@@ -270,37 +280,66 @@ def penalty_per_param(penalty, n_samples: float) -> float:
     return float(penalty)
 
 
+def _candidate_task(shared, k: int, eff, maxiter: int, deviation: bool) -> dict:
+    """Worker task: candidate ``eff`` added to fold ``k``'s base, fitted on its
+    training cells, and what the ranking needs from its held-out cells."""
+    train, base = shared[k]
+    cand = base.copy()
+    cand.add(copy.deepcopy(eff), cells=train)          # fresh state per fold
+    _fit_candidate(cand, eff, train, maxiter)
+    out = {"nll": cand.nll_profiled(~train, deviation=deviation),
+           "n_params": int(cand.components[-1].n_params)}
+    if eff.kind == "variance":
+        out["slots"] = cand.nll_profiled(~train, True, by_slot=True)[1]
+    else:
+        out["energy"] = cand.residual_energy(~train)
+    return out
+
+
 def rank_candidates(model: EffectModel, candidates, folds, penalty=BIC,
-                    maxiter: int = 150, progress=None) -> list:
-    """Held-out scores of ``candidates`` on top of ``model``, best first."""
-    bases = _fold_bases(model, folds, maxiter)
-    dev0 = {}                       # per fold: the base's score on the chirp deviation
-    e0 = {}                         # per fold: the base's held-out residual energy
+                    maxiter: int = 150, progress=None, pool=SERIAL) -> list:
+    """Held-out scores of ``candidates`` on top of ``model``, best first.
+
+    The (candidate, fold) fits are independent and run on ``pool``
+    (:class:`~.workers.FitPool`); ``progress(name)`` follows each candidate
+    whose folds are all fitted."""
+    bases = _fold_bases(model, folds, maxiter, pool)
+    K = len(bases)
+    devs = [eff.kind == "variance" and model.ctx.shape[3] > 1 for eff in candidates]
+    tasks = [(k, eff, maxiter, dev) for eff, dev in zip(candidates, devs) for k in range(K)]
+    left = {i: K for i in range(len(candidates))}
+
+    def done(t):
+        i = t // K
+        left[i] -= 1
+        if left[i] == 0 and progress is not None:
+            progress(candidates[i].name)
+
+    fits = pool.map(_candidate_task, [(b[0], b[1]) for b in bases], tasks, done=done)
+    base_dev, base_energy, base_slots = {}, {}, {}      # per fold, computed once
     out = []
-    for eff in candidates:
+    for i, (eff, dev) in enumerate(zip(candidates, devs)):
         gains, n_tot, cell_gains, energy = [], 0.0, [], [0.0, 0.0]
-        dev = eff.kind == "variance" and model.ctx.shape[3] > 1
         for k, (train, base, nll0, n_test) in enumerate(bases):
-            cand = base.copy()
-            cand.add(copy.deepcopy(eff), cells=train)      # fresh state per fold
-            _fit_candidate(cand, eff, train, maxiter)
+            fit = fits[i * K + k]
             if dev:
-                if k not in dev0:
-                    dev0[k] = base.nll_profiled(~train, deviation=True) * n_test
-                nll0 = dev0[k]
-            gains.append(nll0 - cand.nll_profiled(~train, deviation=dev) * n_test)
+                if k not in base_dev:
+                    base_dev[k] = base.nll_profiled(~train, deviation=True) * n_test
+                nll0 = base_dev[k]
+            gains.append(nll0 - fit["nll"] * n_test)
             if eff.kind == "variance":
-                cell_gains.append(base.nll_profiled(~train, True, by_slot=True)[1]
-                                  - cand.nll_profiled(~train, True, by_slot=True)[1])
+                if k not in base_slots:
+                    base_slots[k] = base.nll_profiled(~train, True, by_slot=True)[1]
+                cell_gains.append(base_slots[k] - fit["slots"])
             else:
-                if k not in e0:
-                    e0[k] = base.residual_energy(~train)
-                energy[0] += e0[k]
-                energy[1] += cand.residual_energy(~train)
+                if k not in base_energy:
+                    base_energy[k] = base.residual_energy(~train)
+                energy[0] += base_energy[k]
+                energy[1] += fit["energy"]
             n_tot += n_test
-        n_params = cand.components[-1].n_params
+        n_params = fits[i * K]["n_params"]
         gain = float(np.sum(gains))
-        out.append(CandidateScore(name=eff.name, n_params=int(n_params), gain=gain,
+        out.append(CandidateScore(name=eff.name, n_params=n_params, gain=gain,
                                   gain_per_sample=gain / max(n_tot, 1.0),
                                   score=gain - penalty_per_param(penalty, n_tot) * n_params,
                                   fold_gains=[float(g) for g in gains],
@@ -308,30 +347,79 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty=BIC,
                                               if cell_gains else 1.0),
                                   energy_change_db=(_db(energy[1] / energy[0])
                                                     if energy[0] > 0 else 0.0)))
-        if progress is not None:
-            progress(eff.name)
     return sorted(out, key=lambda c: c.score, reverse=True)
 
 
-def _restart(model: EffectModel, best: float, maxiter: int) -> float:
+def _trial_values(trial: EffectModel) -> tuple:
+    """What a trial model's fit changed: its NLL, nuisance and component values."""
+    return (trial.nll(), trial.nuisance.values, [c.values for c in trial.components])
+
+
+def _take_values(model: EffectModel, nuisance, values) -> None:
+    model.nuisance.values = nuisance
+    for c, v in zip(model.components, values):
+        c.values = v
+
+
+def _restart_task(model, i: int, maxiter: int) -> tuple:
+    """Worker task: ``model`` with component ``i`` refitted from its initial values."""
+    trial = model.copy()
+    c = trial.components[i]
+    c.values = {k: np.array(s.init, copy=True) for k, s in c.specs.items()}
+    trial.fit(maxiter=2 * maxiter)
+    return _trial_values(trial)
+
+
+def _backfit_task(model, i: int, maxiter: int) -> tuple:
+    """Worker task: ``model`` with component ``i`` re-initialised against the
+    model without it (moved to the end) and everything refitted; returns the
+    re-added effect and specs too (its initialisation may set its state)."""
+    trial = model.copy()
+    old = trial.components[i]
+    trial.remove(old)
+    new = trial.add(copy.deepcopy(old.effect))
+    trial.fit(maxiter=2 * maxiter)
+    return _trial_values(trial) + (new.effect, new.specs)
+
+
+def _in_order(model: EffectModel, task, eligible, best: float, maxiter: int, pool, keep) -> float:
+    """The trials ``task(model, i)`` for the ``eligible(model, i)`` components,
+    in index order, each kept (``keep(i, result)``) when it lowers the NLL
+    below ``best`` -- the next trial then starts from the kept model.
+
+    The trials are run speculatively on ``pool``: all that remain start from
+    the current model at once, the first one that helps is kept, and the ones
+    after it run again from the new model.  The outcome is that of trying
+    them one by one.  Returns the model's NLL."""
+    start = 0
+    while True:
+        idx = [i for i in range(start, len(model.components)) if eligible(model, i)]
+        if not idx:
+            return best
+        results = pool.map(task, model, [(i, maxiter) for i in idx])
+        hit = next(((i, r) for i, r in zip(idx, results) if r[0] < best - 1e-6), None)
+        if hit is None:
+            return best
+        i, r = hit
+        keep(i, r)
+        best, start = r[0], i + 1
+
+
+def _restart(model: EffectModel, best: float, maxiter: int, pool=SERIAL) -> float:
     """Refit from a fresh start (zero values) the components that allow it
     (e.g. a pose offset fitted before a sensor effect bent it); keep the
     restart when the NLL drops.  Returns the model's NLL."""
-    for i, c in enumerate(model.components):
-        if not getattr(c.effect, "restartable", False):
-            continue
+    def keep(i, r):
         trial = model.copy()
-        trial.components[i].values = {k: np.array(s.init, copy=True)
-                                      for k, s in c.specs.items()}
-        trial.fit(maxiter=2 * maxiter)
-        nll = trial.nll()
-        if nll < best - 1e-6:
-            model.components, model.nuisance = trial.components, trial.nuisance
-            best = nll
-    return best
+        _take_values(trial, r[1], r[2])
+        model.components, model.nuisance = trial.components, trial.nuisance
+
+    return _in_order(model, _restart_task,
+                     lambda m, i: getattr(m.components[i].effect, "restartable", False),
+                     best, maxiter, pool, keep)
 
 
-def _backfit(model: EffectModel, newest, maxiter: int):
+def _backfit(model: EffectModel, newest, maxiter: int, pool=SERIAL):
     """Re-initialise every earlier adopted effect against the current model
     without it, refit all jointly, and keep the change when the NLL drops.
 
@@ -343,22 +431,23 @@ def _backfit(model: EffectModel, newest, maxiter: int):
     residual usually finds the right basin (backfitting).  Returns the
     newest component (the same object unless a trial replaced the list).
     """
-    k = _position(model, newest)
-    best = _restart(model, model.nll(), maxiter)
-    for i in range(len(model.components)):
-        if i == k or model.components[i].effect.kind == "basis" or _frozen(model.components[i]):
-            continue
+    k = [_position(model, newest)]
+    best = _restart(model, model.nll(), maxiter, pool)
+
+    def eligible(m, i):
+        c = m.components[i]
+        return i != k[0] and c.effect.kind != "basis" and not _frozen(c)
+
+    def keep(i, r):
         trial = model.copy()
-        old = trial.components[i]
-        trial.remove(old)
-        trial.add(copy.deepcopy(old.effect))
-        trial.fit(maxiter=2 * maxiter)
-        nll = trial.nll()
-        if nll < best - 1e-6:
-            model.components, model.nuisance = trial.components, trial.nuisance
-            k = k if k < i else k - 1        # the re-added effect moved to the end
-            best = nll
-    return model.components[k]
+        trial.remove(trial.components[i])
+        trial.components.append(_Component(effect=r[3], specs=r[4], values={}))
+        _take_values(trial, r[1], r[2])
+        model.components, model.nuisance = trial.components, trial.nuisance
+        k[0] = k[0] if k[0] < i else k[0] - 1        # the re-added effect moved to the end
+
+    _in_order(model, _backfit_task, eligible, best, maxiter, pool, keep)
+    return model.components[k[0]]
 
 
 def _position(model: EffectModel, comp) -> int:
@@ -377,8 +466,8 @@ class _Tiers:
     every candidate only when one of them has no averaged counterpart
     (ego-motion, clipping)."""
 
-    def __init__(self, model, folds, seed, groups):
-        self.model = model
+    def __init__(self, model, folds, seed, groups, pool=SERIAL):
+        self.model, self.pool = model, pool
         self.avg = model.chirp_averaged(freeze=True) if model.can_average() else model
         self.folds = _folds(model.ctx.shape[:4], folds, seed, groups)[0]
         self.avg_folds = (self.folds if self.avg is model
@@ -391,10 +480,12 @@ class _Tiers:
         fast = [c for c in todo if _averaged_scoring(c)]
         slow = [c for c in todo if not _averaged_scoring(c)]
         if fast:
-            out = rank_candidates(self.avg, fast, self.avg_folds, penalty, maxiter, progress)
+            out = rank_candidates(self.avg, fast, self.avg_folds, penalty, maxiter, progress,
+                                  self.pool)
             self.scores.update((c.name, c) for c in out)
         if slow:
-            out = rank_candidates(self.model, slow, self.folds, penalty, maxiter, progress)
+            out = rank_candidates(self.model, slow, self.folds, penalty, maxiter, progress,
+                                  self.pool)
             self.scores.update((c.name, c) for c in out)
         return sorted((self.scores[c.name] for c in candidates), key=lambda c: c.score,
                       reverse=True)
@@ -414,7 +505,7 @@ class _Tiers:
         if rival is None:
             return ranking, best
         (again,) = rank_candidates(self.model, [effects[rival.name]], self.folds, penalty,
-                                   maxiter, progress)
+                                   maxiter, progress, self.pool)
         # its gain floor stays judged on the chirp average, where it is set
         again = dataclasses.replace(again, gain_per_sample=rival.gain_per_sample)
         ranking = sorted([again if c is rival else c for c in ranking],
@@ -530,7 +621,7 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
     return ranking, None
 
 
-def _adopt(model, eff, maxiter):
+def _adopt(model, eff, maxiter, pool=SERIAL):
     """Add ``eff`` and refit everything jointly (backfitting earlier effects
     after a mean effect); on chirp-averaged data when every component allows
     it (then the full model takes the values and refits its noise floor;
@@ -548,20 +639,20 @@ def _adopt(model, eff, maxiter):
     if eff.kind != "variance":      # a noise model only reweights the mean fit
         if work is model and getattr(eff, "shapes_noise", False) and model.can_average() \
                 and model.ctx.shape[3] > 1:
-            return _backfit_on_average(model, comp, maxiter)
-        comp = _backfit(work, comp, maxiter)
+            return _backfit_on_average(model, comp, maxiter, pool)
+        comp = _backfit(work, comp, maxiter, pool)
     if work is not model:                   # the values carry over
         comp = _carry_back(model, work, comp, maxiter)
     return comp
 
 
-def _backfit_on_average(model, comp, maxiter):
+def _backfit_on_average(model, comp, maxiter, pool=SERIAL):
     """:func:`_backfit` on the chirp average of ``model`` (``comp`` fitted on
     every chirp); when a trial is kept, ``model`` takes its values and is
     refitted jointly on every chirp.  Returns ``comp``'s current counterpart."""
     avg = model.chirp_averaged(freeze=True)
     listed = avg.components
-    new = _backfit(avg, avg.components[_position(model, comp)], maxiter)
+    new = _backfit(avg, avg.components[_position(model, comp)], maxiter, pool)
     if avg.components is listed:                     # no trial was kept
         return comp
     return _carry_back(model, avg, new, maxiter, joint=True)
@@ -590,9 +681,7 @@ def _frozen(comp) -> bool:
 
 
 def _copy_component(c):
-    from ..effects.model import Component
-
-    return Component(effect=c.effect, specs=c.specs,
+    return _Component(effect=c.effect, specs=c.specs,
                      values={k: np.array(v, copy=True) for k, v in c.values.items()})
 
 
@@ -635,7 +724,7 @@ class DiagnosisRun:
         Base model and adopted effects (modified in place).
     candidates : list of Effect
         Candidate effects.
-    folds, penalty, min_gain, seed, maxiter, groups
+    folds, penalty, min_gain, seed, maxiter, groups, workers
         As :func:`diagnose`.
     progress : callable, optional
         ``progress(event, name)`` with ``event`` ``"scored"`` (a candidate)
@@ -644,13 +733,14 @@ class DiagnosisRun:
 
     def __init__(self, model: EffectModel, candidates, folds: int = 3, penalty=BIC,
                  min_gain: float = 1e-3, seed: int = 0, maxiter: int = 150, groups: str = "auto",
-                 progress=None):
+                 progress=None, workers=1):
         from .screening import screen
 
         candidates = _check_candidates(candidates, model)
         self.model, self.pool, self.names = model, list(candidates), [c.name for c in candidates]
         self.folds, self.penalty, self.min_gain = folds, check_penalty(penalty), min_gain
         self.seed, self.maxiter, self.groups, self.progress = seed, maxiter, groups, progress
+        self.fits = FitPool(workers)
         self.fold_groups = _folds(model.ctx.shape[:4], folds, seed, groups)[1]
         self.screened = screen(model.y, model.scale, candidates)
         self.adoptions, self.ranking, self.stop_reason = [], [], None
@@ -671,13 +761,20 @@ class DiagnosisRun:
     def step(self) -> Adoption | None:
         """Rank, adopt the best and refit everything; ``None`` (and
         :attr:`stop_reason` set) when nothing helps any more."""
+        limiter = one_blas_thread()
+        try:
+            return self._step()
+        finally:
+            limiter.restore_original_limits()
+
+    def _step(self) -> Adoption | None:
         if not self.pool:
             self.stop_reason = "no candidate left"
             return None
         if len(self.adoptions) >= ROUND_CAP:
             self.stop_reason = f"round cap ({ROUND_CAP}) reached while candidates still helped"
             return None
-        tiers = _Tiers(self.model, self.folds, self.seed, self.groups)
+        tiers = _Tiers(self.model, self.folds, self.seed, self.groups, self.fits)
         scored = None if self.progress is None else (lambda n: self.progress("scored", n))
         vetoed = set()
         while True:
@@ -708,7 +805,7 @@ class DiagnosisRun:
         """Adopt ``eff`` (:func:`_adopt`); undo it and return None when the
         joint refit made the mean model worse (:func:`_mean_worse`)."""
         before, saved = self.current, self.model.copy()
-        comp = _adopt(self.model, eff, self.maxiter)
+        comp = _adopt(self.model, eff, self.maxiter, self.fits)
         self.current = _current_metrics(self.model)
         if not _mean_worse(eff, before, self.current):
             return comp
@@ -763,7 +860,7 @@ def _check_candidates(candidates, model) -> list:
 
 def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int | None = None,
              penalty=BIC, min_gain: float = 1e-3, seed: int = 0,
-             maxiter: int = 150, progress=None, groups: str = "auto") -> Diagnosis:
+             maxiter: int = 150, progress=None, groups: str = "auto", workers=1) -> Diagnosis:
     """The adopt-until-nothing-helps loop; see the module docstring.
 
     Parameters
@@ -783,13 +880,16 @@ def diagnose(model: EffectModel, candidates, folds: int = 3, max_rounds: int | N
         ``progress(name)`` after each candidate is scored.
     groups : {"auto", "channel", "cell"}
         The cross-validation hold-out unit (see :func:`cv_folds`).
+    workers : int or "auto"
+        Processes for the independent fits of a round (:class:`~.workers.FitPool`;
+        1: all in this process).  The result does not depend on it.
 
     Returns
     -------
     Diagnosis
     """
     run = DiagnosisRun(model, candidates, folds=folds, penalty=penalty, min_gain=min_gain,
-                       seed=seed, maxiter=maxiter, groups=groups,
+                       seed=seed, maxiter=maxiter, groups=groups, workers=workers,
                        progress=None if progress is None else
                        (lambda event, name: progress(name) if event == "scored" else None))
     while not run.done:

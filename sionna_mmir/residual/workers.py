@@ -1,0 +1,190 @@
+"""Worker processes for the independent fits of a diagnosis round.
+
+A diagnosis round fits every candidate on every cross-validation fold and,
+after an adoption, tries re-initialising each earlier effect; the fits are
+independent of each other and the effect fits run Dr.Jit on one thread
+(:func:`~sionna_mmir.effects.ops.single_thread`), so a round uses one core
+unless the fits are spread over processes.  :class:`FitPool` runs a list of
+tasks ``fn(shared, *args)`` either in this process (``workers = 1``) or in
+``workers`` spawned processes; ``shared`` (the fold models, several MB) is
+written once per call to a temporary file that each worker loads once,
+instead of being sent with every task.  The results come back in task order
+and are the same numbers the serial path computes: each task is a pure
+function of its inputs.
+
+A worker that dies (a crash inside a compiled kernel) does not lose the
+round: the pool is dropped and the tasks are run again in this process.
+"""
+from __future__ import annotations
+
+import atexit
+import os
+import pickle
+import shutil
+import tempfile
+import uuid
+import warnings
+
+from ..errors import ConfigError
+
+#: ``workers = "auto"``: one worker per core this process may run on
+AUTO = "auto"
+
+
+def available_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:                    # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def check_workers(workers) -> int:
+    """``workers`` as a number of processes >= 1 (``"auto"``: :func:`available_cores`)."""
+    if workers is None or (isinstance(workers, str) and workers.strip().lower() == AUTO):
+        return available_cores()
+    try:
+        n = int(workers)
+    except (TypeError, ValueError):
+        n = None
+    if n is None or isinstance(workers, bool) or n != float(workers) or n < 1:
+        raise ConfigError(f"--workers must be 'auto' or an integer >= 1, got {workers!r}")
+    return n
+
+
+# ---------------------------------------------------------------- worker side
+_LOADED = {"path": None, "value": None}
+
+
+def one_blas_thread():
+    """Limit BLAS to one thread (until the returned limiter's ``restore()``).
+
+    The effect models are small: BLAS threads only spin-wait beside the
+    single-threaded Dr.Jit fits (a serial round used 1.7 cores for the
+    work of one), and they would take the other workers' cores."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _call(fn, path, args):
+    """Run one task in a worker: ``fn(shared, *args)`` with ``shared`` loaded
+    from ``path`` (kept until a task names another file)."""
+    if "blas" not in _LOADED:                # a worker is one core's worth of work
+        _LOADED["blas"] = one_blas_thread()
+        from ..utils.backend import init_backend
+
+        init_backend()
+        import drjit as dr
+
+        dr.set_thread_count(1)
+    if _LOADED["path"] != path:
+        _LOADED["value"] = None
+        with open(path, "rb") as f:
+            _LOADED["value"] = pickle.load(f)
+        _LOADED["path"] = path
+    return fn(_LOADED["value"], *args)
+
+
+# ---------------------------------------------------------------- parent side
+_EXECUTORS: dict = {}
+_TMP: dict = {}
+
+
+def _executor(n: int):
+    from concurrent.futures import ProcessPoolExecutor
+    import multiprocessing
+
+    if n not in _EXECUTORS:
+        from ..utils.backend import VARIANT_ENV, init_backend
+
+        # the workers must pick the parent's Mitsuba variant (they inherit the environment)
+        os.environ.setdefault(VARIANT_ENV, init_backend())
+        _EXECUTORS[n] = ProcessPoolExecutor(max_workers=n,
+                                            mp_context=multiprocessing.get_context("spawn"))
+    return _EXECUTORS[n]
+
+
+def _tmpdir() -> str:
+    if "dir" not in _TMP:
+        _TMP["dir"] = tempfile.mkdtemp(prefix="sionna_mmir_fits_")
+    return _TMP["dir"]
+
+
+def shutdown() -> None:
+    """Stop every worker process and remove the shared files (also at exit)."""
+    for ex in _EXECUTORS.values():
+        ex.shutdown(wait=True, cancel_futures=True)
+    _EXECUTORS.clear()
+    if "dir" in _TMP:
+        shutil.rmtree(_TMP.pop("dir"), ignore_errors=True)
+
+
+atexit.register(shutdown)
+
+
+class FitPool:
+    """Runs independent fit tasks, in this process or in worker processes.
+
+    Parameters
+    ----------
+    workers : int or "auto"
+        Processes (1: run every task here).  The pool of processes is made on
+        first use and shared by every :class:`FitPool` of the same size.
+    """
+
+    def __init__(self, workers=1):
+        self.workers = check_workers(workers)
+
+    def map(self, fn, shared, tasks, done=None) -> list:
+        """``[fn(shared, *args) for args in tasks]``, in task order.
+
+        ``fn`` must be a module-level function (workers import it by name);
+        ``shared`` and the task arguments must pickle.  ``done(i)`` is called
+        as task ``i`` finishes (in any order)."""
+        tasks = [tuple(t) for t in tasks]
+        if self.workers <= 1 or len(tasks) <= 1:
+            return _serial(fn, shared, tasks, done)
+        from concurrent.futures import as_completed
+        from concurrent.futures.process import BrokenProcessPool
+
+        path = os.path.join(_tmpdir(), f"{uuid.uuid4().hex}.pkl")
+        with open(path, "wb") as f:
+            pickle.dump(shared, f, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            ex = _executor(self.workers)
+            futures = {ex.submit(_call, fn, path, t): i for i, t in enumerate(tasks)}
+            for fut in as_completed(futures):
+                fut.result()
+                if done is not None:
+                    done(futures[fut])
+            return [fut.result() for fut in futures]
+        except BrokenProcessPool:
+            warnings.warn("a fit worker process died; running its tasks in this process",
+                          RuntimeWarning, stacklevel=2)
+            _EXECUTORS.pop(self.workers, None)
+            return _serial(fn, shared, tasks, done)
+        finally:
+            os.remove(path)
+
+    def __getstate__(self):
+        return {"workers": self.workers}
+
+    def __setstate__(self, state):
+        self.workers = state["workers"]
+
+
+def _serial(fn, shared, tasks, done):
+    out = []
+    for i, t in enumerate(tasks):
+        out.append(fn(shared, *t))
+        if done is not None:
+            done(i)
+    return out
+
+
+#: the in-process pool
+SERIAL = FitPool(1)
+
+__all__ = ["AUTO", "FitPool", "SERIAL", "available_cores", "check_workers", "one_blas_thread",
+           "shutdown"]

@@ -1,0 +1,128 @@
+"""Worker processes for a diagnosis round (:mod:`sionna_mmir.residual.workers`):
+the settings, the pool's task order, and a diagnosis that is the same on
+one process and on two."""
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from sionna_mmir.effects import EffectContext, EffectModel
+from sionna_mmir.effects.library.channel_gain import ChannelGain
+from sionna_mmir.effects.library.noise_floor import NoiseFloor
+from sionna_mmir.effects.library.scatterer import MissingScatterer
+from sionna_mmir.errors import ConfigError
+from sionna_mmir.fmcw.synthesize import synthesize_adc
+from sionna_mmir.radar.config import RadarConfig
+from sionna_mmir.residual import diagnose
+from sionna_mmir.residual.diagnosis import _in_order
+from sionna_mmir.residual.workers import FitPool, available_cores, check_workers
+
+from helpers import point_target_delays, target_at
+
+
+def test_01_workers_setting():
+    assert check_workers("auto") == available_cores() >= 1
+    assert check_workers(None) == available_cores()
+    assert check_workers("3") == 3 and check_workers(1) == 1
+    for bad in (0, -1, "0", "1.5", 2.5, "many", "", True):
+        with pytest.raises(ConfigError, match="--workers"):
+            check_workers(bad)
+
+
+def test_02_pool_returns_results_in_task_order_and_reports_each_task_once():
+    tasks = [(k,) for k in range(7)]
+    seen = []
+    out = FitPool(2).map(pow, 3, tasks, done=seen.append)      # pow(shared, k) in a worker
+    assert out == [3 ** k for k in range(7)]
+    assert sorted(seen) == list(range(7))
+    assert FitPool(1).map(pow, 3, tasks) == out
+    # a pool pickles as its size only (a checkpointed run holds one)
+    assert pickle.loads(pickle.dumps(FitPool(2))).workers == 2
+
+
+class _Toy:
+    """A stand-in model: ``components`` are numbers, a trial's NLL depends on all."""
+
+    def __init__(self, comps):
+        self.components = list(comps)
+
+
+def _toy_task(model, i, maxiter):
+    c = model.components
+    # trial i lowers the NLL when its component is odd, by more when earlier ones were kept (even)
+    return (10.0 - sum(1 for v in c if v % 2 == 0) - (0.5 if c[i] % 2 else -1.0), i)
+
+
+def test_03_speculative_trials_keep_what_trying_them_one_by_one_keeps():
+    start = [1, 4, 3, 5, 8, 7]
+    eligible = (lambda m, i: i != 1)
+
+    def keep_into(model, log):
+        def keep(i, r):
+            model.components[i] += 1           # kept: the component changes (odd -> even)
+            log.append(i)
+        return keep
+
+    # one by one, the reference
+    ref = _Toy(start)
+    best, ref_log = _toy_task(ref, 0, 0)[0] + 0.1, []
+    for i in range(len(ref.components)):
+        if not eligible(ref, i):
+            continue
+        r = _toy_task(ref, i, 0)
+        if r[0] < best - 1e-6:
+            keep_into(ref, ref_log)(i, r)
+            best = r[0]
+    spec = _Toy(start)
+    spec_log = []
+    got = _in_order(spec, _toy_task, eligible, _toy_task(spec, 0, 0)[0] + 0.1, 0, FitPool(1),
+                    keep_into(spec, spec_log))
+    assert spec_log == ref_log and spec.components == ref.components and got == best
+    assert len(ref_log) >= 2                                 # more than one trial was kept
+
+
+def _measured_and_base():
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    T, R = radar.num_tx, radar.num_rx
+    rng = np.random.default_rng(4)
+    g = np.exp(1j * (rng.uniform(-np.pi, np.pi, T)[:, None] + rng.uniform(-np.pi, np.pi, R)[None]))
+
+    def render(targets):
+        a, tau = [], []
+        for r_m, az, amp in targets:
+            tau.append(point_target_delays(radar, target_at(radar, r_m, az))[..., 0])
+            a.append(np.full((T, R), amp, complex))
+        return synthesize_adc(radar, np.stack(a, -1), np.stack(tau, -1))[None]
+
+    base = [(1.5, 0.0, 1.0), (3.4, np.radians(-20), 0.5)]
+    clean = render(base)
+    meas = render(base + [(2.6, np.radians(25), 0.4)]) * g[None, :, :, None, None]
+    meas = meas + 0.01 * (rng.normal(size=clean.shape) + 1j * rng.normal(size=clean.shape))
+    return EffectContext(radar), meas, clean
+
+
+def test_04_a_pickled_model_computes_what_the_original_computes():
+    ctx, meas, clean = _measured_and_base()
+    m = EffectModel(ctx, meas, clean)
+    m.add(ChannelGain())
+    m.fit(maxiter=20)
+    again = pickle.loads(pickle.dumps(m))
+    assert "Y" not in m.__getstate__()                       # tensors are rebuilt, not sent
+    assert np.array_equal(again.mean_variance_numpy()[0], m.mean_variance_numpy()[0])
+    assert again.nll() == m.nll()
+
+
+def test_05_diagnosis_on_two_processes_is_the_diagnosis_on_one():
+    """Every candidate score, the adoptions (with the backfit of the first
+    adopted effect) and the final metrics are the same numbers."""
+    ctx, meas, clean = _measured_and_base()
+    cands = [ChannelGain(), MissingScatterer(), NoiseFloor()]
+    one = diagnose(EffectModel(ctx, meas, clean), cands, max_rounds=2, workers=1)
+    two = diagnose(EffectModel(ctx, meas, clean), cands, max_rounds=2, workers=2)
+    assert one.adopted == two.adopted == ["channel_gain", "missing_scatterer"]
+    for a, b in zip(one.adoptions, two.adoptions):
+        assert [c.to_dict() for c in a.candidates] == [c.to_dict() for c in b.candidates]
+        assert a.after == b.after
+    assert one.final == two.final
