@@ -53,6 +53,19 @@ def direct_adc(radar, a, tau, tau_rate=None) -> np.ndarray:
     return np.sum(a[:, :, None, None, :] * ph, axis=-1)
 
 
+def point_targets_adc(radar, targets) -> np.ndarray:
+    """ADC ``[1, T, R, C, N]`` of point targets ``(range m, azimuth rad, amplitude)``
+    at exact per-pair delays (the package's synthesis)."""
+    from sionna_mmir.fmcw.synthesize import synthesize_adc
+
+    T, R = radar.num_tx, radar.num_rx
+    a, tau = [], []
+    for r_m, az, amp in targets:
+        tau.append(point_target_delays(radar, target_at(radar, r_m, az))[..., 0])
+        a.append(np.full((T, R), amp, complex))
+    return synthesize_adc(radar, np.stack(a, -1), np.stack(tau, -1))[None]
+
+
 def peak_index(arr) -> tuple:
     """Index tuple of the maximum of ``arr``."""
     return np.unravel_index(int(np.argmax(arr)), np.shape(arr))

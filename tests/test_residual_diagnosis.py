@@ -121,14 +121,10 @@ def test_06_scatterer_behind_channel_phases_is_found_at_its_true_angle():
     T, R = radar.num_tx, radar.num_rx
     rng = np.random.default_rng(4)
     g = np.exp(1j * (rng.uniform(-np.pi, np.pi, T)[:, None] + rng.uniform(-np.pi, np.pi, R)[None]))
-    from helpers import point_target_delays, target_at
+    from helpers import point_targets_adc
 
     def render(targets):
-        a, tau = [], []
-        for r_m, az, amp in targets:
-            tau.append(point_target_delays(radar, target_at(radar, r_m, az))[..., 0])
-            a.append(np.full((T, R), amp, complex))
-        return synthesize_adc(radar, np.stack(a, -1), np.stack(tau, -1))[None]
+        return point_targets_adc(radar, targets)
 
     base_targets = [(1.5, 0.0, 1.0), (3.4, np.radians(-20), 0.5)]
     extra = (2.6, np.radians(25), 0.4)

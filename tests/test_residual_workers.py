@@ -13,13 +13,12 @@ from sionna_mmir.effects.library.channel_gain import ChannelGain
 from sionna_mmir.effects.library.noise_floor import NoiseFloor
 from sionna_mmir.effects.library.scatterer import MissingScatterer
 from sionna_mmir.errors import ConfigError
-from sionna_mmir.fmcw.synthesize import synthesize_adc
 from sionna_mmir.radar.config import RadarConfig
 from sionna_mmir.residual import diagnose
 from sionna_mmir.residual.diagnosis import _in_order
 from sionna_mmir.residual.workers import FitPool, available_cores, check_workers
 
-from helpers import point_target_delays, target_at
+from helpers import point_targets_adc
 
 
 def test_01_workers_setting():
@@ -89,16 +88,9 @@ def _measured_and_base():
     rng = np.random.default_rng(4)
     g = np.exp(1j * (rng.uniform(-np.pi, np.pi, T)[:, None] + rng.uniform(-np.pi, np.pi, R)[None]))
 
-    def render(targets):
-        a, tau = [], []
-        for r_m, az, amp in targets:
-            tau.append(point_target_delays(radar, target_at(radar, r_m, az))[..., 0])
-            a.append(np.full((T, R), amp, complex))
-        return synthesize_adc(radar, np.stack(a, -1), np.stack(tau, -1))[None]
-
     base = [(1.5, 0.0, 1.0), (3.4, np.radians(-20), 0.5)]
-    clean = render(base)
-    meas = render(base + [(2.6, np.radians(25), 0.4)]) * g[None, :, :, None, None]
+    clean = point_targets_adc(radar, base)
+    meas = point_targets_adc(radar, base + [(2.6, np.radians(25), 0.4)]) * g[None, :, :, None, None]
     meas = meas + 0.01 * (rng.normal(size=clean.shape) + 1j * rng.normal(size=clean.shape))
     return EffectContext(radar), meas, clean
 

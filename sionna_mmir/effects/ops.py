@@ -23,6 +23,7 @@ import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
 __all__ = ["single_thread", "tensor", "to_numpy", "cmul", "cis", "abs2", "conj", "cadd", "scale",
+           "opaque",
            "dft", "idft", "zeros_like"]
 
 
@@ -150,6 +151,13 @@ def _shaped(flat, shape):
     if math.prod(shape) == 1:
         return flat + 0.0
     return mi.TensorXf(flat, shape)
+
+
+def opaque(value):
+    """A data-dependent scalar (a fitted position, a per-object constant) as a
+    width-1 ``mi.Float`` held in memory: a Python float would be baked into
+    the kernel as a literal, and every new value would compile a new kernel."""
+    return dr.opaque(mi.Float, float(value))
 
 
 def item(x) -> float:

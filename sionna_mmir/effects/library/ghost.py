@@ -351,9 +351,9 @@ class MultipathGhost(Effect):
         a = target_amplitude(x, ctx, tgt)
         img0 = image_point(tgt, q, n, 0.0)
         off = ops.view(p["offset"], one)
-        P = [float(tgt[i]) for i in range(3)]
-        I = [float(img0[i]) + (2.0 * float(n[i])) * off for i in range(3)]
-        nP = float(np.linalg.norm(tgt))
+        P = [ops.opaque(tgt[i]) for i in range(3)]
+        I = [ops.opaque(img0[i]) + ops.opaque(2.0 * n[i]) * off for i in range(3)]
+        nP = ops.opaque(np.linalg.norm(tgt))
         nI = dr.sqrt(dr.square(I[0]) + dr.square(I[1]) + dr.square(I[2]))
         s1 = ops.cadd(ops.cis(dr_ref_phase(geo, I, P, nI, nP)),
                       ops.cis(dr_ref_phase(geo, P, I, nP, nI)))

@@ -83,13 +83,14 @@ def _constant(owner, build):
 def _delay_maps(basis):
     """The pose-delay map (:meth:`~..scene_basis.SceneBasis.pose_delay_matrix`)
     as constants: per component six tensors ``[1, T, R, 1, 1]`` and the six
-    pair means ``[K, 6]`` [s per m | s per rad]."""
+    pair means (per component six width-1 values) [s per m | s per rad]."""
     def build():
         M = basis.pose_delay_matrix()
         K, T, R, _ = M.shape
         maps = [[ops.tensor(M[o, :, :, i].reshape(1, T, R, 1, 1)) for i in range(6)]
                 for o in range(K)]
-        return maps, M.mean(axis=(1, 2))
+        means = M.mean(axis=(1, 2))
+        return maps, [[ops.opaque(means[o, i]) for i in range(6)] for o in range(K)]
     return _constant(basis, build)
 
 
@@ -112,7 +113,7 @@ def _linear_delay(maps, means, v, sign=1.0):
     for m, mu, x in zip(maps, means, v):
         term = m * (sign * x)
         dtau = term if dtau is None else dtau + term
-        mean = mean + float(sign * mu) * x
+        mean = mean + mu * (sign * x)
     return dtau, mean
 
 
@@ -212,7 +213,7 @@ class ObjectShift(BasisEffect):
         out = []
         for o, b in enumerate(B):                                 # by -(a radar translation)
             v = [scalar(p["shift"], 3 * o + i) for i in range(3)]
-            dtau, mean = _linear_delay(maps[o][:3], means[o, :3], v, sign=-1.0)
+            dtau, mean = _linear_delay(maps[o][:3], means[o][:3], v, sign=-1.0)
             out.append(ops.cmul(b, ops.cis(_delay_phase(dtau, mean, ctx))))
         return out
 
@@ -248,7 +249,7 @@ class PoseOffset(BasisEffect):
                                       unit="rad")}
 
     def apply_basis(self, B, p, ctx):
-        maps, means = _delay_maps(ctx.basis)                      # [K][6], [K, 6]
+        maps, means = _delay_maps(ctx.basis)                      # [K][6], [K][6]
         v = ([scalar(p["translation"], j) for j in range(3)]
              + [scalar(p["rotation"], j) for j in range(3)])
         out = []
