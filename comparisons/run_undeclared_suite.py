@@ -137,12 +137,12 @@ def _range_azimuth(d) -> tuple:
 
 def _table(rows) -> list:
     L = ["| case | planted | adopted (order) | first [dB] | final [dB] | unexplained [dB] | "
-         "ok | s | commit |", "|---|---|---|---|---|---|---|---|---|"]
+         "ok | s | processes | commit |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         L.append(f"| {r['case']} ({r['radar']}, {r['chirps']} chirps) | {', '.join(r['planted']) or '-'} | "
                  f"{', '.join(r['adopted']) or '-'} | {r['first_db']:.2f} | {r['final_db']:.2f} | "
                  f"{r['unexplained_db']:+.2f} | {'yes' if r['ok'] else 'NO'} | "
-                 f"{r['seconds']:.0f} | {r.get('commit', '-')} |")
+                 f"{r['seconds']:.0f} | {r.get('workers', 1)} | {r.get('commit', '-')} |")
     return L
 
 
@@ -193,7 +193,10 @@ def _write(args, rows) -> None:
     text = [f"# The loop on the independent undeclared-effect suite", "",
             f"Reproduce: `.venv/bin/python {cmd}`", "",
             "Truth: the planted effects of `sionna_mmir.independent.undeclared` (no code shared "
-            "with the solver or the effects library).", ""]
+            "with the solver or the effects library).", "",
+            "s: wall time of the whole loop; processes: the loop's worker processes for a "
+            "round's fits (rows with 1 ran on one process, most of them two loops side by "
+            "side on the 2 cores).", ""]
     for radar in sorted({r["radar"] for r in rows}):
         sel = [r for r in rows if r["radar"] == radar]
         text += [f"## {radar}", ""] + _table(sel) + _summary(sel) + [""]
