@@ -87,7 +87,7 @@ def add_workers(p) -> None:
     """``--workers N|auto``: processes for the independent fits of a diagnosis round."""
     p.add_argument("--workers", default="auto",
                    help="processes for the independent fits of a diagnosis round: a number, or "
-                        "'auto' for one per core (default); 1 runs them all in this process. "
+                        "'auto' for one per core; 1 runs them all in this process. "
                         "The result does not depend on it")
 
 
