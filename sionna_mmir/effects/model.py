@@ -64,6 +64,11 @@ class Component:
     def n_params(self) -> int:
         return num_params(self.specs)
 
+    def copy(self) -> "Component":
+        """The same effect and specs with independent copies of the values."""
+        return Component(effect=self.effect, specs=self.specs,
+                         values={k: np.array(v, copy=True) for k, v in self.values.items()})
+
 
 class EffectModel:
     """Base render + effects; see the module docstring.
@@ -227,8 +232,8 @@ class EffectModel:
         new.Y = ops.tensor(new.Y_numpy)
         new.b_t = ops.tensor(new.b)
         new.basis_t = new._basis_tensors()
-        new.nuisance = _copy_comp(self.nuisance)
-        new.components = [parts.get(id(c)) or _copy_comp(c) for c in self.components]
+        new.nuisance = self.nuisance.copy()
+        new.components = [parts.get(id(c)) or c.copy() for c in self.components]
         r = new.y - new.mean_variance_numpy()[0]
         new.nuisance.values["log_noise"] = np.array([np.log(max(np.mean(np.abs(r) ** 2),
                                                                  1e-12))])
@@ -293,8 +298,8 @@ class EffectModel:
         """Shallow copy with independent component values (tensors are shared)."""
         new = object.__new__(EffectModel)
         new.__dict__.update(self.__dict__)
-        new.nuisance = _copy_comp(self.nuisance)
-        new.components = [_copy_comp(c) for c in self.components]
+        new.nuisance = self.nuisance.copy()
+        new.components = [c.copy() for c in self.components]
         return new
 
     # ------------------------------------------------------------- forward
@@ -636,8 +641,3 @@ def _profiled_cells(r2, s, extra) -> np.ndarray:
 
 def _block(tens, i, comp):
     return {k: tens[(i, k)] for k in comp.specs}
-
-
-def _copy_comp(c: Component) -> Component:
-    return Component(effect=c.effect, specs=c.specs,
-                     values={k: np.array(v, copy=True) for k, v in c.values.items()})

@@ -665,7 +665,7 @@ def _carry_back(model, work, comp, maxiter, joint=False):
     ``joint``.  Returns ``comp``'s counterpart in ``model``."""
     k = _position(work, comp)
     source = {id(c.effect): c for c in model.components}
-    model.components = [source[id(c.effect.source)] if _frozen(c) else _copy_component(c)
+    model.components = [source[id(c.effect.source)] if _frozen(c) else c.copy()
                         for c in work.components]
     model.nuisance.values["gain"] = np.array(work.nuisance.values["gain"], copy=True)
     full = joint or any(_frozen(c) for c in work.components)
@@ -678,11 +678,6 @@ def _frozen(comp) -> bool:
     from ..effects.frozen import FrozenPart
 
     return isinstance(comp.effect, FrozenPart)
-
-
-def _copy_component(c):
-    return _Component(effect=c.effect, specs=c.specs,
-                     values={k: np.array(v, copy=True) for k, v in c.values.items()})
 
 
 #: a mean-kind adoption is undone when its joint refit raises the residual

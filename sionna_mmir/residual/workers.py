@@ -67,17 +67,20 @@ def one_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
+def _init_worker():
+    """A worker is one core's worth of work: BLAS and Dr.Jit on one thread."""
+    from ..utils.backend import init_backend
+
+    _LOADED["blas"] = one_blas_thread()
+    init_backend()
+    import drjit as dr
+
+    dr.set_thread_count(1)
+
+
 def _call(fn, path, args):
     """Run one task in a worker: ``fn(shared, *args)`` with ``shared`` loaded
     from ``path`` (kept until a task names another file)."""
-    if "blas" not in _LOADED:                # a worker is one core's worth of work
-        _LOADED["blas"] = one_blas_thread()
-        from ..utils.backend import init_backend
-
-        init_backend()
-        import drjit as dr
-
-        dr.set_thread_count(1)
     if _LOADED["path"] != path:
         _LOADED["value"] = None
         with open(path, "rb") as f:
@@ -100,7 +103,7 @@ def _executor(n: int):
 
         # the workers must pick the parent's Mitsuba variant (they inherit the environment)
         os.environ.setdefault(VARIANT_ENV, init_backend())
-        _EXECUTORS[n] = ProcessPoolExecutor(max_workers=n,
+        _EXECUTORS[n] = ProcessPoolExecutor(max_workers=n, initializer=_init_worker,
                                             mp_context=multiprocessing.get_context("spawn"))
     return _EXECUTORS[n]
 
