@@ -66,6 +66,51 @@ def point_targets_adc(radar, targets) -> np.ndarray:
     return synthesize_adc(radar, np.stack(a, -1), np.stack(tau, -1))[None]
 
 
+def _nll_ad_grad(m, i, key):
+    """AD gradient of model ``m``'s NLL over every cell w.r.t. ``components[i].values[key]``."""
+    from sionna_mmir.effects import ops
+
+    dr = ops.dr
+    tens = m._tensors(grad_keys={(i, key)})
+    mask, cnt = m.mask_tensor()
+    _, X, v = m._forward(tens)
+    r2 = ops.abs2((m.Y[0] - X[0], m.Y[1] - X[1]))
+    loss = dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / cnt
+    dr.backward(loss)
+    shape = m.components[i].values[key].shape
+    return np.asarray(dr.grad(tens[(i, key)]), np.float64).reshape(shape)
+
+
+def check_nll_gradients(m, i, steps, seed=0):
+    """AD directional derivative of the NLL along a random +-1 direction per block
+    vs the central difference with step ``steps[key]`` (values kept float32-exact)."""
+    import pytest
+
+    from sionna_mmir.effects import ops
+
+    rng = np.random.default_rng(seed)
+    comp = m.components[i]
+    errors = {}
+    for key, h_target in steps.items():
+        val = np.asarray(comp.values[key], np.float32).astype(np.float64)
+        comp.values[key] = val
+        with ops.single_thread():
+            g = _nll_ad_grad(m, i, key)
+        d = rng.choice([-1.0, 1.0], size=val.shape)
+        h = 2.0 ** np.round(np.log2(h_target))
+        comp.values[key] = val + h * d
+        up = m.nll()
+        comp.values[key] = val - h * d
+        down = m.nll()
+        comp.values[key] = val
+        fd = (up - down) / (2 * h)
+        ad = float(np.sum(g * d))
+        errors[key] = abs(ad - fd) / abs(fd)
+        assert abs(fd) > 1e-3, (key, fd)
+        assert ad == pytest.approx(fd, rel=0.02), (key, ad, fd)
+    return errors
+
+
 def peak_index(arr) -> tuple:
     """Index tuple of the maximum of ``arr``."""
     return np.unravel_index(int(np.argmax(arr)), np.shape(arr))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers import direct_adc, point_target_delays
+from helpers import check_nll_gradients as _check_gradients, direct_adc, point_target_delays
 from sionna_mmir.effects import EffectContext, EffectModel, ops
 from sionna_mmir.effects.library.coupling import Coupling, coupling_profile, coupling_signal
 from sionna_mmir.effects.library.ego_motion import EgoMotion
@@ -43,43 +43,6 @@ def _scene(radar, targets=((2.0, 0.0, 1.0), (4.2, -20.0, 0.5j))):
 def _apply(effect, x, values, ctx):
     p = {k: mi.TensorXf(np.ascontiguousarray(v, np.float32)) for k, v in values.items()}
     return ops.to_numpy(effect.apply(ops.tensor(x), p, ctx))
-
-
-def _ad_grad(m, i, key):
-    tens = m._tensors(grad_keys={(i, key)})
-    mask, cnt = m.mask_tensor()
-    _, X, v = m._forward(tens)
-    r2 = ops.abs2((m.Y[0] - X[0], m.Y[1] - X[1]))
-    loss = dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / cnt
-    dr.backward(loss)
-    shape = m.components[i].values[key].shape
-    return np.asarray(dr.grad(tens[(i, key)]), np.float64).reshape(shape)
-
-
-def _check_gradients(m, i, steps, seed=0):
-    """AD directional derivative of the NLL along a random +-1 direction per block
-    vs the central difference with step ``steps[key]`` (values kept float32-exact)."""
-    rng = np.random.default_rng(seed)
-    comp = m.components[i]
-    errors = {}
-    for key, h_target in steps.items():
-        val = np.asarray(comp.values[key], np.float32).astype(np.float64)
-        comp.values[key] = val
-        with ops.single_thread():
-            g = _ad_grad(m, i, key)
-        d = rng.choice([-1.0, 1.0], size=val.shape)
-        h = 2.0 ** np.round(np.log2(h_target))
-        comp.values[key] = val + h * d
-        up = m.nll()
-        comp.values[key] = val - h * d
-        down = m.nll()
-        comp.values[key] = val
-        fd = (up - down) / (2 * h)
-        ad = float(np.sum(g * d))
-        errors[key] = abs(ad - fd) / abs(fd)
-        assert abs(fd) > 1e-3, (key, fd)
-        assert ad == pytest.approx(fd, rel=0.02), (key, ad, fd)
-    return errors
 
 
 def _noise_nll(m, std=NOISE):

@@ -231,3 +231,29 @@ def test_08_mesh_planes_are_the_large_flat_objects_in_the_radar_frame():
     # the wall's normal -y (scene) seen in a frame yawed by +30 deg: -(sin 30, cos 30, 0)
     assert n == pytest.approx([-np.sin(yaw), -np.cos(yaw), 0], abs=1e-9)
     assert np.dot(q, n) == pytest.approx(-2.5, abs=1e-9)       # 2.5 m from the radar
+
+
+@pytest.mark.parametrize("effect,steps,start", [
+    ("PoseOffset", {"translation": 1e-4, "rotation": 1e-4},
+     {"translation": [0.003, -0.002, 0.001], "rotation": [0.001, -0.002, 0.001]}),
+    ("ObjectShift", {"shift": 1e-4}, {"shift": [[0.002, 0.01, 0.0], [0.0, 0.004, 0.001],
+                                                [0.001, 0.0, -0.002]]}),
+    ("ObjectDelay", {"range": 1e-4}, {"range": [0.002, -0.003, 0.001]}),
+])
+def test_09_pose_and_object_delay_gradients_match_finite_differences(effect, steps, start):
+    """The per-pair delay effects (through the basis' pose-delay map and its
+    pair means): AD of the NLL against central differences, off the optimum
+    (a capture with the targets moved, the model's values elsewhere)."""
+    from helpers import check_nll_gradients
+    from sionna_mmir.effects.library import scene_mismatch
+
+    radar = RadarConfig.mmwcas(num_chirps=1)
+    B = _adc(radar, TARGETS, np.ones(3))
+    moved = TARGETS + np.array([[0.0, 0.02, 0.0], [0.004, 0.0, 0.0], [0.0, 0.0, 0.003]])
+    y = _adc(radar, moved, np.ones(3)).sum(axis=0) + _noise(B.shape[1:], 1e-3)
+    m = _model(radar, y, _basis(radar, B, TARGETS))
+    comp = m.add(getattr(scene_mismatch, effect)())
+    for key, value in start.items():
+        comp.values[key] = np.asarray(value, float).reshape(comp.values[key].shape)
+    err = check_nll_gradients(m, 0, steps)
+    assert max(err.values()) < 0.02
