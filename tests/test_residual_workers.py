@@ -74,12 +74,29 @@ def test_03_speculative_trials_keep_what_trying_them_one_by_one_keeps():
         if r[0] < best - 1e-6:
             keep_into(ref, ref_log)(i, r)
             best = r[0]
-    spec = _Toy(start)
-    spec_log = []
-    got = _in_order(spec, _toy_task, eligible, _toy_task(spec, 0, 0)[0] + 0.1, 0, FitPool(1),
-                    keep_into(spec, spec_log))
-    assert spec_log == ref_log and spec.components == ref.components and got == best
     assert len(ref_log) >= 2                                 # more than one trial was kept
+    n_ref = sum(1 for i in range(len(start)) if eligible(ref, i))
+    for width in (1, 2, 3, 10):
+        pool = _Batches(width)
+        spec = _Toy(start)
+        spec_log = []
+        got = _in_order(spec, _toy_task, eligible, _toy_task(spec, 0, 0)[0] + 0.1, 0, pool,
+                        keep_into(spec, spec_log))
+        assert spec_log == ref_log and spec.components == ref.components and got == best
+        assert max(pool.batches) <= width                   # never wider than the pool
+        if width == 1:                                      # nothing run in vain
+            assert sum(pool.batches) == n_ref
+
+
+class _Batches:
+    """A serial pool of a given width that records the size of every batch."""
+
+    def __init__(self, workers):
+        self.workers, self.batches = workers, []
+
+    def map(self, fn, shared, tasks, done=None):
+        self.batches.append(len(tasks))
+        return [fn(shared, *t) for t in tasks]
 
 
 def _measured_and_base():
