@@ -153,7 +153,7 @@ def test_07_variance_effects_are_ranked_only_when_no_mean_effect_helps():
 
 
 def test_08_slot_share_counts_the_transmit_slots_that_gain():
-    from sionna_mmir.residual.diagnosis import slot_share
+    from sionna_mmir.residual.ranking import slot_share
 
     shape = (1, 2, 2, 2)                                   # F, T, R, C
     test = np.ones(shape, bool)
@@ -201,7 +201,7 @@ def test_10_an_if_filter_is_scored_on_every_chirp_a_gain_on_the_chirp_average():
     notch under what the scene leaves unexplained, so it is scored on every
     chirp (the held-out sample count says which data a score saw)."""
     from sionna_mmir.effects.library.if_filter import IFFilter
-    from sionna_mmir.residual.diagnosis import _Tiers
+    from sionna_mmir.residual.ranking import _Tiers
 
     radar = RadarConfig.awr1843(num_chirps=8, num_samples=64)
     ctx = EffectContext(radar)
@@ -322,7 +322,7 @@ def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
     from sionna_mmir.effects.library.coupling import Coupling
     from sionna_mmir.effects.library.delay_offset import DelayOffset
     from sionna_mmir.effects.library.frequency_offset import FrequencyOffset
-    from sionna_mmir.residual.diagnosis import SCENE_MARGIN, CandidateScore, _rank_round
+    from sionna_mmir.residual.ranking import SCENE_MARGIN, CandidateScore, _rank_round
 
     class Tiers:                                     # fixed gains, one held-out sample each
         def __init__(self, gains):
@@ -367,7 +367,7 @@ def test_15_a_noise_model_is_scored_on_the_chirp_to_chirp_scatter():
     from test_effects_sensor import _phase_noise_draws
 
     from sionna_mmir.effects.library.phase_noise import PhaseNoise
-    from sionna_mmir.residual.diagnosis import rank_candidates
+    from sionna_mmir.residual.ranking import rank_candidates
 
     radar = RadarConfig.awr1843(num_chirps=8, num_samples=64)
     ctx = EffectContext(radar)
@@ -397,7 +397,7 @@ def test_16_ego_motion_is_scored_beside_a_mover_it_makes_redundant():
 
     from sionna_mmir.effects.library.ego_motion import EgoMotion
     from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
-    from sionna_mmir.residual.diagnosis import rank_candidates
+    from sionna_mmir.residual.ranking import rank_candidates
 
     radar = RadarConfig.awr1843(num_chirps=8)
     F, period, v = 2, 2e-3, 0.73
@@ -422,7 +422,7 @@ def test_17_candidates_of_the_two_tiers_are_compared_on_the_full_data():
     import dataclasses as dc
 
     from sionna_mmir.effects.library.if_filter import IFFilter
-    from sionna_mmir.residual.diagnosis import _Tiers, rank_candidates
+    from sionna_mmir.residual.ranking import _Tiers, rank_candidates
 
     radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
     ctx = EffectContext(radar)
@@ -445,7 +445,7 @@ def test_18_the_default_penalty_grows_with_the_held_out_samples():
     """The score charges ``ln(n) / 2`` nats per parameter (the BIC's weight; n
     the held-out complex samples the candidate was scored on), a fixed number
     when one is given; anything else is refused.  Truth: the closed form."""
-    from sionna_mmir.residual.diagnosis import check_penalty, penalty_per_param, rank_candidates
+    from sionna_mmir.residual.ranking import check_penalty, penalty_per_param, rank_candidates
 
     radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
     ctx = EffectContext(radar)
@@ -488,7 +488,7 @@ def test_20_a_mean_candidate_must_lower_the_held_out_residual_energy():
     vetoed one is ranked but not chosen; variance effects and effects that
     shape the noise (an IF filter) are not held to it.  On data, a planted per-channel gain lowers the held-out residual
     energy (truth: the planted gains)."""
-    from sionna_mmir.residual.diagnosis import CandidateScore, _rank_round, rank_candidates
+    from sionna_mmir.residual.ranking import CandidateScore, _rank_round, rank_candidates
 
     class Tiers:
         model = type("M", (), {"ctx": None})()

@@ -15,7 +15,7 @@ from sionna_mmir.effects.library.scatterer import MissingScatterer
 from sionna_mmir.errors import ConfigError
 from sionna_mmir.radar.config import RadarConfig
 from sionna_mmir.residual import diagnose
-from sionna_mmir.residual.diagnosis import _in_order
+from sionna_mmir.residual.adoption import _in_order
 from sionna_mmir.residual.workers import FitPool, available_cores, check_workers
 
 from helpers import point_targets_adc

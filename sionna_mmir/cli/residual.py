@@ -64,7 +64,7 @@ def run(args) -> int:
     from ..effects.library import candidate_effects
     from ..residual import diagnose
     from ..residual.base_model import base_model
-    from ..residual.diagnosis import check_penalty
+    from ..residual.ranking import check_penalty
     from ..residual.workers import check_workers
     from ..residual.report import write_report
 

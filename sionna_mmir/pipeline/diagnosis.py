@@ -8,7 +8,8 @@ predicts held-out channels better (:class:`~sionna_mmir.residual.diagnosis.Diagn
 """
 from __future__ import annotations
 
-from ..residual.diagnosis import BIC, DiagnosisRun
+from ..residual.diagnosis import DiagnosisRun
+from ..residual.ranking import BIC
 
 
 class Diagnosis:

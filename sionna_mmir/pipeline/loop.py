@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError, InputValueError
-from ..residual.diagnosis import BIC, check_penalty
+from ..residual.ranking import BIC, check_penalty
 from ..residual.workers import AUTO, FitPool, check_workers
 from .radar_model import RadarModel, loop_solver_options
 
@@ -92,7 +92,7 @@ class LoopRequest:
         and the sensor chain; :mod:`sionna_mmir.effects.profile`).
     folds, penalty
         Cross-validation folds; nats per candidate parameter (``"bic"``:
-        ``ln(n) / 2``, :func:`~sionna_mmir.residual.diagnosis.penalty_per_param`).
+        ``ln(n) / 2``, :func:`~sionna_mmir.residual.ranking.penalty_per_param`).
     workers : int or "auto"
         Processes for the independent fits of a diagnosis round
         (:class:`~sionna_mmir.residual.workers.FitPool`; ``"auto"``: one per core).

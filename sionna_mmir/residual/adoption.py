@@ -1,0 +1,213 @@
+"""Adopting a chosen effect: the joint refit, restarts and backfitting of the
+earlier adoptions, and the guard that undoes an adoption which made the
+mean model worse.
+
+The second half of :mod:`~sionna_mmir.residual.diagnosis`: :func:`_adopt`
+adds the round's best effect and refits every component jointly (on the
+chirp average where every component allows it); :func:`_backfit`
+re-initialises each earlier effect against the model without it and keeps
+what lowers the NLL, with the independent trials on worker processes in an
+order that gives the result of trying them one by one (:func:`_in_order`).
+"""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from ..effects.model import Component as _Component, EffectModel
+from .ranking import _averaged_scoring, _mean_only
+from .workers import SERIAL
+
+
+def _trial_values(trial: EffectModel) -> tuple:
+    """What a trial model's fit changed: its NLL, nuisance and component values."""
+    return (trial.nll(), trial.nuisance.values, [c.values for c in trial.components])
+
+
+def _take_values(model: EffectModel, nuisance, values) -> None:
+    model.nuisance.values = nuisance
+    for c, v in zip(model.components, values):
+        c.values = v
+
+
+def _restart_task(model, i: int, maxiter: int) -> tuple:
+    """Worker task: ``model`` with component ``i`` refitted from its initial values."""
+    trial = model.copy()
+    c = trial.components[i]
+    c.values = {k: np.array(s.init, copy=True) for k, s in c.specs.items()}
+    trial.fit(maxiter=2 * maxiter)
+    return _trial_values(trial)
+
+
+def _backfit_task(model, i: int, maxiter: int) -> tuple:
+    """Worker task: ``model`` with component ``i`` re-initialised against the
+    model without it (moved to the end) and everything refitted; returns the
+    re-added effect and specs too (its initialisation may set its state)."""
+    trial = model.copy()
+    old = trial.components[i]
+    trial.remove(old)
+    new = trial.add(copy.deepcopy(old.effect))
+    trial.fit(maxiter=2 * maxiter)
+    return _trial_values(trial) + (new.effect, new.specs)
+
+
+def _in_order(model: EffectModel, task, eligible, best: float, maxiter: int, pool, keep) -> float:
+    """The trials ``task(model, i)`` for the ``eligible(model, i)`` components,
+    in index order, each kept (``keep(i, result)``) when it lowers the NLL
+    below ``best`` -- the next trial then starts from the kept model.
+
+    The trials are run speculatively on ``pool``, as many at once as it has
+    workers: the next few start from the current model together, the first
+    one that helps is kept, and the ones after it run again from the new
+    model.  The outcome is that of trying them one by one; a trial is wasted
+    only when an earlier one in its batch is kept.  Returns the model's NLL."""
+    start = 0
+    while True:
+        idx = [i for i in range(start, len(model.components)) if eligible(model, i)]
+        if not idx:
+            return best
+        idx = idx[:max(pool.workers, 1)]
+        results = pool.map(task, model, [(i, maxiter) for i in idx])
+        hit = next(((i, r) for i, r in zip(idx, results) if r[0] < best - 1e-6), None)
+        if hit is None:
+            start = idx[-1] + 1
+            continue
+        i, r = hit
+        keep(i, r)
+        best, start = r[0], i + 1
+
+
+def _restart(model: EffectModel, best: float, maxiter: int, pool=SERIAL) -> float:
+    """Refit from a fresh start (zero values) the components that allow it
+    (e.g. a pose offset fitted before a sensor effect bent it); keep the
+    restart when the NLL drops.  Returns the model's NLL."""
+    def keep(i, r):
+        trial = model.copy()
+        _take_values(trial, r[1], r[2])
+        model.components, model.nuisance = trial.components, trial.nuisance
+
+    return _in_order(model, _restart_task,
+                     lambda m, i: getattr(m.components[i].effect, "restartable", False),
+                     best, maxiter, pool, keep)
+
+
+def _backfit(model: EffectModel, newest, maxiter: int, pool=SERIAL):
+    """Re-initialise every earlier adopted effect against the current model
+    without it, refit all jointly, and keep the change when the NLL drops.
+
+    An effect adopted while another one was still missing is initialised
+    (and fitted) to absorb part of that one's signature: per-channel delays
+    adopted before a missing scatterer bend to its phases, and the scatterer
+    proposed afterwards lands off its true position.  Once the newer effect
+    is in, the earlier one's data-driven initialisation from the cleaner
+    residual usually finds the right basin (backfitting).  Returns the
+    newest component (the same object unless a trial replaced the list).
+    """
+    k = [_position(model, newest)]
+    best = _restart(model, model.nll(), maxiter, pool)
+
+    def eligible(m, i):
+        c = m.components[i]
+        return i != k[0] and c.effect.kind != "basis" and not _frozen(c)
+
+    def keep(i, r):
+        trial = model.copy()
+        trial.remove(trial.components[i])
+        trial.components.append(_Component(effect=r[3], specs=r[4], values={}))
+        _take_values(trial, r[1], r[2])
+        model.components, model.nuisance = trial.components, trial.nuisance
+        k[0] = k[0] if k[0] < i else k[0] - 1        # the re-added effect moved to the end
+
+    _in_order(model, _backfit_task, eligible, best, maxiter, pool, keep)
+    return model.components[k[0]]
+
+
+def _position(model: EffectModel, comp) -> int:
+    """Index of ``comp`` (by identity) in ``model.components``."""
+    return next(i for i, c in enumerate(model.components) if c is comp)
+
+
+def _adopt(model, eff, maxiter, pool=SERIAL):
+    """Add ``eff`` and refit everything jointly (backfitting earlier effects
+    after a mean effect); on chirp-averaged data when every component allows
+    it (then the full model takes the values and refits its noise floor;
+    chirp-varying components held fixed there are refitted jointly with the
+    rest on the full data).  An effect fitted on every chirp for its noise
+    shape (an IF filter) is backfitted on the chirp average: the earlier
+    effects' signatures are in the mean, at ``1 / C`` of the cost.  A mover
+    is backfitted on every chirp: on the average it would be held fixed, so
+    its own refit would wait for a kept trial and leave part of a
+    chirp-varying residual to the next mover.  Returns the new component."""
+    static = _averaged_scoring(eff) and model.can_average()
+    work = model.chirp_averaged(freeze=True) if static else model
+    comp = work.add(copy.deepcopy(eff))
+    work.fit(maxiter=2 * maxiter)
+    if eff.kind != "variance":      # a noise model only reweights the mean fit
+        if work is model and getattr(eff, "shapes_noise", False) and model.can_average() \
+                and model.ctx.shape[3] > 1:
+            return _backfit_on_average(model, comp, maxiter, pool)
+        comp = _backfit(work, comp, maxiter, pool)
+    if work is not model:                   # the values carry over
+        comp = _carry_back(model, work, comp, maxiter)
+    return comp
+
+
+def _backfit_on_average(model, comp, maxiter, pool=SERIAL):
+    """:func:`_backfit` on the chirp average of ``model`` (``comp`` fitted on
+    every chirp); when a trial is kept, ``model`` takes its values and is
+    refitted jointly on every chirp.  Returns ``comp``'s current counterpart."""
+    avg = model.chirp_averaged(freeze=True)
+    listed = avg.components
+    new = _backfit(avg, avg.components[_position(model, comp)], maxiter, pool)
+    if avg.components is listed:                     # no trial was kept
+        return comp
+    return _carry_back(model, avg, new, maxiter, joint=True)
+
+
+def _carry_back(model, work, comp, maxiter, joint=False):
+    """Give ``model`` the component values fitted on its chirp-averaged
+    ``work`` model and refit it on the full data: the nuisance only, or
+    everything when ``work`` held chirp-varying components fixed or with
+    ``joint``.  Returns ``comp``'s counterpart in ``model``."""
+    k = _position(work, comp)
+    source = {id(c.effect): c for c in model.components}
+    model.components = [source[id(c.effect.source)] if _frozen(c) else c.copy()
+                        for c in work.components]
+    model.nuisance.values["gain"] = np.array(work.nuisance.values["gain"], copy=True)
+    full = joint or any(_frozen(c) for c in work.components)
+    model.fit(trainable=None if full else [], maxiter=2 * maxiter if full else maxiter)
+    return model.components[k]
+
+
+def _frozen(comp) -> bool:
+    """Whether ``comp`` stands in, fixed, for a chirp-varying component."""
+    from ..effects.frozen import FrozenPart
+
+    return isinstance(comp.effect, FrozenPart)
+
+
+#: a mean-kind adoption is undone when its joint refit raises the residual
+#: energy ``|y - x|^2`` of all cells by more than this [dB] (:func:`_mean_worse`)
+MEAN_GUARD_DB = 0.1
+
+
+def _mean_worse(eff, before: dict, after: dict) -> bool:
+    """Whether adopting the mean-kind ``eff`` made the mean model worse.
+
+    The held-out likelihood is the adoption test, but beside adopted variance
+    effects (a phase-noise skirt, a coloured floor) a mean effect can gain
+    likelihood by raising the predicted variance where the residual is large
+    instead of explaining it (a Tx->Rx leakage fitted beside phase noise on a
+    measured capture can gain thousands of held-out nats while its tones
+    overshoot the capture's leakage).  A mean effect that is
+    really there lowers the squared error of the mean model, on held-out
+    channels (:attr:`CandidateScore.energy_change_db`, required <= 0 in the
+    ranking) and after the joint refit on all cells (checked here).  Variance
+    effects only reweight the mean fit and are not held to it, nor are mean
+    effects that also shape the receiver noise (an IF filter: most of its
+    signature is the noise notch, and its fit trades a little mean misfit
+    for it)."""
+    if not _mean_only(eff):
+        return False
+    return after["residual_energy_db"] > before["residual_energy_db"] + MEAN_GUARD_DB

@@ -1,0 +1,427 @@
+"""Scoring candidate effects: cross-validation folds, held-out gains, the
+two data tiers and the rules that choose a round's best.
+
+The method is described in :mod:`~sionna_mmir.residual.diagnosis`; this
+module holds its first half: every candidate is fitted per fold on the
+training cells (:func:`rank_candidates`, on worker processes) and scored by
+its held-out likelihood gain, chirp-static candidates on the chirp average
+and the rest on every chirp (:class:`_Tiers`), and :func:`_rank_round`
+applies the acceptance rules (gain floors, stationarity of noise models,
+the mean guard, scene mismatch before sensor effects, parsimony).
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..effects.model import EffectModel
+from .analysis import _db
+from .workers import SERIAL
+
+
+@dataclasses.dataclass
+class CandidateScore:
+    """Held-out result of one candidate in one round."""
+
+    name: str
+    n_params: int
+    gain: float                 # total held-out NLL reduction [nats]
+    gain_per_sample: float      # per held-out complex sample [nats]
+    score: float                # gain - penalty per parameter * n_params
+    fold_gains: list
+    #: share of the transmit slots (frame, Tx, chirp) whose held-out NLL the candidate lowers
+    slot_share: float = 1.0
+    #: change of the held-out residual energy ``sum |Y - X|^2`` [dB] (mean-kind
+    #: candidates; 0 for variance effects, which do not predict the mean); a
+    #: mean-only candidate (:func:`_mean_only`) is acceptable only when it is <= 0
+    energy_change_db: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {k: (round(v, 6) if isinstance(v, float) else v)
+                for k, v in dataclasses.asdict(self).items()}
+
+
+def cv_folds(shape, k: int = 3, seed: int = 0, groups: str = "auto") -> list:
+    """``k`` boolean training masks over cells ``shape = (F, T, R, C)``.
+
+    ``groups``: ``"channel"`` deals whole virtual channels (Tx-Rx pairs, all
+    frames and chirps) to folds, ``"cell"`` single (frame, Tx, Rx, chirp)
+    cells, ``"auto"`` channels where possible, else cells.  Every training
+    mask keeps every Tx and every Rx (re-dealt otherwise), so per-Tx /
+    per-Rx effects are estimable in every fold.
+    """
+    return _folds(shape, k, seed, groups)[0]
+
+
+def _folds(shape, k, seed, groups):
+    """``(training masks, "channel" | "cell")``; see :func:`cv_folds`."""
+    F, T, R, C = shape
+    if groups not in ("auto", "channel", "cell"):
+        raise ConfigError(f"cv_folds: groups must be 'auto', 'channel' or 'cell', got {groups!r}")
+    n = F * T * R * C
+    if k < 2 or n < k:
+        raise ConfigError(f"cv_folds: need 2 <= folds <= cells ({n}), got {k}")
+    rng = np.random.default_rng(seed)
+
+    def deal(group_shape, expand):
+        m = int(np.prod(group_shape))
+        for _ in range(200):
+            fold = expand(rng.permutation(np.arange(m) % k).reshape(group_shape))
+            trains = [fold != i for i in range(k)]
+            if all(t.any(axis=(0, 2, 3)).all() and t.any(axis=(0, 1, 3)).all() for t in trains):
+                return trains
+        return None
+
+    if groups != "cell" and T * R >= 2 * k:
+        trains = deal((T, R), lambda f: np.broadcast_to(f[None, :, :, None], shape))
+        if trains is not None:
+            return trains, "channel"
+        if groups == "channel":
+            raise ConfigError(f"cv_folds: cannot hold out whole channels of a {T} Tx x {R} Rx "
+                              f"array in {k} folds and keep every Tx and Rx in training")
+    elif groups == "channel":
+        raise ConfigError(f"cv_folds: {T * R} virtual channels are too few for {k} "
+                          "channel folds (need 2 per fold)")
+    trains = deal(shape, lambda f: f)
+    if trains is None:                       # tiny arrays: accept the last deal
+        fold = rng.permutation(np.arange(n) % k).reshape(shape)
+        trains = [fold != i for i in range(k)]
+    return trains, "cell"
+
+
+def _fold_base_task(shared, k: int, maxiter: int) -> dict:
+    """Worker task: the nuisance values of ``model`` refitted on fold ``k``'s training cells."""
+    model, folds = shared
+    base = model.copy()
+    base.fit(trainable=[], cells=folds[k], maxiter=maxiter)
+    return base.nuisance.values
+
+
+def _fold_bases(model: EffectModel, folds, maxiter, pool=SERIAL) -> list:
+    """Per fold: the current model refitted (nuisance only) on the training cells,
+    with its held-out NLL total and the number of held-out samples."""
+    out = []
+    fitted = pool.map(_fold_base_task, (model, folds), [(k, maxiter) for k in range(len(folds))])
+    for train, values in zip(folds, fitted):
+        test = ~train
+        n_test = float(test.sum()) * model.ctx.shape[-1]
+        base = model.copy()
+        base.nuisance.values = values
+        out.append((train, base, base.nll_profiled(test) * n_test, n_test))
+    return out
+
+
+def slot_share(gains: list, tests: list) -> float:
+    """Share of the transmit slots (frame, Tx, chirp) with a positive held-out gain.
+
+    ``gains[i]`` holds the per-cell NLL reductions on the held-out cells of
+    fold ``i`` (boolean mask ``tests[i]`` ``[F, T, R, C]``, in its order),
+    each model's white floor profiled per slot
+    (:meth:`~sionna_mmir.effects.model.EffectModel.nll_profiled` with
+    ``by_slot``), so that a floor raised by a few slots does not make every
+    slot look noisier than it is.  In TDM-MIMO every Tx fires in its own
+    time slot, so a slot is a (frame, Tx, chirp) transmission: a burst of
+    interference hits some transmissions of a chirp loop and not others.  A
+    stationary effect (a noise floor, a phase-noise skirt) claims the same
+    statistics in every slot, so it should help in most; a gain from a few
+    slots is a localised disturbance the effect only absorbs.  1.0 when there
+    are fewer than 4 slots.
+    """
+    F, T, _, C = tests[0].shape
+    if F * T * C < 4:
+        return 1.0
+    per_slot = np.zeros((F, T, C))
+    for g, test in zip(gains, tests):
+        f, t, _, c = np.nonzero(test)
+        np.add.at(per_slot, (f, t, c), g)
+    return float(np.mean(per_slot > 0))
+
+
+def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
+    """Fit the candidate ``eff`` (the last component of ``cand``) on ``train``.
+
+    An effect that may make adopted ones redundant (``eff.may_replace``, e.g.
+    ego motion beside movers: a mover adopted first may be a static object
+    seen from the moving radar, and ego motion scored with it held fixed
+    would show that object twice) is fitted alone with those silenced
+    (:meth:`~sionna_mmir.effects.base.Effect.silenced`), then with every
+    component, so the object's amplitude can move back from the mover to
+    the scene."""
+    new = len(cand.components) - 1
+    names = set(eff.may_replace)
+    replaced = [c for c in cand.components[:new] if c.effect.name in names]
+    if not replaced:
+        cand.fit(trainable=[new], cells=train, maxiter=maxiter)
+        return
+    for c in replaced:
+        c.values = c.effect.silenced(c.values) or c.values
+    cand.fit(trainable=[new], cells=train, maxiter=maxiter)
+    cand.fit(cells=train, maxiter=maxiter)
+
+
+#: the default penalty: the BIC's ``ln(n) / 2`` nats per real parameter
+BIC = "bic"
+
+
+def check_penalty(penalty):
+    """``penalty`` validated: ``"bic"`` or a finite number of nats >= 0."""
+    if isinstance(penalty, str):
+        if penalty.strip().lower() == BIC:
+            return BIC
+        try:
+            penalty = float(penalty)
+        except ValueError:
+            raise ConfigError(f"--penalty must be 'bic' or a number of nats >= 0, "
+                              f"got {penalty!r}") from None
+    if isinstance(penalty, bool) or not isinstance(penalty, (int, float, np.floating)) \
+            or not np.isfinite(penalty) or penalty < 0:
+        raise ConfigError(f"--penalty must be 'bic' or a finite number of nats >= 0, "
+                          f"got {penalty!r}")
+    return float(penalty)
+
+
+def penalty_per_param(penalty, n_samples: float) -> float:
+    """Nats charged per real parameter of a candidate scored on ``n_samples``
+    held-out complex samples: ``ln(n) / 2`` for ``"bic"``, else ``penalty``."""
+    if penalty == BIC:
+        return 0.5 * float(np.log(max(n_samples, 1.0)))
+    return float(penalty)
+
+
+def _candidate_task(shared, k: int, eff, maxiter: int, deviation: bool) -> dict:
+    """Worker task: candidate ``eff`` added to fold ``k``'s base, fitted on its
+    training cells, and what the ranking needs from its held-out cells."""
+    train, base = shared[k]
+    cand = base.copy()
+    cand.add(copy.deepcopy(eff), cells=train)          # fresh state per fold
+    _fit_candidate(cand, eff, train, maxiter)
+    out = {"nll": cand.nll_profiled(~train, deviation=deviation),
+           "n_params": int(cand.components[-1].n_params)}
+    if eff.kind == "variance":
+        out["slots"] = cand.nll_profiled(~train, True, by_slot=True)[1]
+    else:
+        out["energy"] = cand.residual_energy(~train)
+    return out
+
+
+def rank_candidates(model: EffectModel, candidates, folds, penalty=BIC,
+                    maxiter: int = 150, progress=None, pool=SERIAL) -> list:
+    """Held-out scores of ``candidates`` on top of ``model``, best first.
+
+    The (candidate, fold) fits are independent and run on ``pool``
+    (:class:`~.workers.FitPool`); ``progress(name)`` follows each candidate
+    whose folds are all fitted."""
+    bases = _fold_bases(model, folds, maxiter, pool)
+    K = len(bases)
+    devs = [eff.kind == "variance" and model.ctx.shape[3] > 1 for eff in candidates]
+    tasks = [(k, eff, maxiter, dev) for eff, dev in zip(candidates, devs) for k in range(K)]
+    left = {i: K for i in range(len(candidates))}
+
+    def done(t):
+        i = t // K
+        left[i] -= 1
+        if left[i] == 0 and progress is not None:
+            progress(candidates[i].name)
+
+    fits = pool.map(_candidate_task, [(b[0], b[1]) for b in bases], tasks, done=done)
+    base_dev, base_energy, base_slots = {}, {}, {}      # per fold, computed once
+    out = []
+    for i, (eff, dev) in enumerate(zip(candidates, devs)):
+        gains, n_tot, cell_gains, energy = [], 0.0, [], [0.0, 0.0]
+        for k, (train, base, nll0, n_test) in enumerate(bases):
+            fit = fits[i * K + k]
+            if dev:
+                if k not in base_dev:
+                    base_dev[k] = base.nll_profiled(~train, deviation=True) * n_test
+                nll0 = base_dev[k]
+            gains.append(nll0 - fit["nll"] * n_test)
+            if eff.kind == "variance":
+                if k not in base_slots:
+                    base_slots[k] = base.nll_profiled(~train, True, by_slot=True)[1]
+                cell_gains.append(base_slots[k] - fit["slots"])
+            else:
+                if k not in base_energy:
+                    base_energy[k] = base.residual_energy(~train)
+                energy[0] += base_energy[k]
+                energy[1] += fit["energy"]
+            n_tot += n_test
+        n_params = fits[i * K]["n_params"]
+        gain = float(np.sum(gains))
+        out.append(CandidateScore(name=eff.name, n_params=n_params, gain=gain,
+                                  gain_per_sample=gain / max(n_tot, 1.0),
+                                  score=gain - penalty_per_param(penalty, n_tot) * n_params,
+                                  fold_gains=[float(g) for g in gains],
+                                  slot_share=(slot_share(cell_gains, [~b[0] for b in bases])
+                                              if cell_gains else 1.0),
+                                  energy_change_db=(_db(energy[1] / energy[0])
+                                                    if energy[0] > 0 else 0.0)))
+    return sorted(out, key=lambda c: c.score, reverse=True)
+
+
+class _Tiers:
+    """The models candidates are scored on: the chirp-averaged model for the
+    chirp-static candidates (as many nats from a fraction of the data;
+    :func:`_averaged_scoring`), the full model for the rest; with their
+    cross-validation folds.  Adopted chirp-varying components enter the
+    averaged model at their current values
+    (:class:`~sionna_mmir.effects.frozen.FrozenPart`: a mover's averaged
+    path, a noise effect's averaged variance); the full model is used for
+    every candidate only when one of them has no averaged counterpart
+    (ego-motion, clipping)."""
+
+    def __init__(self, model, folds, seed, groups, pool=SERIAL):
+        self.model, self.pool = model, pool
+        self.avg = model.chirp_averaged(freeze=True) if model.can_average() else model
+        self.folds = _folds(model.ctx.shape[:4], folds, seed, groups)[0]
+        self.avg_folds = (self.folds if self.avg is model
+                          else _folds(self.avg.ctx.shape[:4], folds, seed, groups)[0])
+        self.scores = {}
+
+    def rank(self, candidates, penalty, maxiter, progress):
+        """Scores of ``candidates``, best first (each scored once per round)."""
+        todo = [c for c in candidates if c.name not in self.scores]
+        fast = [c for c in todo if _averaged_scoring(c)]
+        slow = [c for c in todo if not _averaged_scoring(c)]
+        if fast:
+            out = rank_candidates(self.avg, fast, self.avg_folds, penalty, maxiter, progress,
+                                  self.pool)
+            self.scores.update((c.name, c) for c in out)
+        if slow:
+            out = rank_candidates(self.model, slow, self.folds, penalty, maxiter, progress,
+                                  self.pool)
+            self.scores.update((c.name, c) for c in out)
+        return sorted((self.scores[c.name] for c in candidates), key=lambda c: c.score,
+                      reverse=True)
+
+    def on_one_scale(self, ranking, best, pool, ok, penalty, maxiter, progress):
+        """``(ranking, best)`` with scores comparable across the tiers.
+
+        A held-out gain on every chirp is not on the chirp average's scale (a
+        misfit well above the noise gains up to ``C`` times more nats on the
+        full data).  When the best acceptable candidate was scored on the full
+        data and an acceptable chirp-averaged one ranks below it, that one is
+        scored again on the full data and the two are compared there."""
+        effects = {c.name: c for c in pool}
+        if self.avg is self.model or _averaged_scoring(effects[best.name]):
+            return ranking, best
+        rival = next((c for c in ranking if ok(c) and _averaged_scoring(effects[c.name])), None)
+        if rival is None:
+            return ranking, best
+        (again,) = rank_candidates(self.model, [effects[rival.name]], self.folds, penalty,
+                                   maxiter, progress, self.pool)
+        # its gain floor stays judged on the chirp average, where it is set
+        again = dataclasses.replace(again, gain_per_sample=rival.gain_per_sample)
+        ranking = sorted([again if c is rival else c for c in ranking],
+                         key=lambda c: c.score, reverse=True)
+        return ranking, next((c for c in ranking if ok(c)), None)
+
+
+def _averaged_scoring(eff) -> bool:
+    """Whether ``eff`` is scored and fitted on chirp-averaged data: a
+    chirp-static effect, unless it also shapes the receiver noise (an IF
+    filter): averaging over chirps buries the noise shape, its most robust
+    signature, under what the scene leaves unexplained."""
+    return eff.chirp_static and not getattr(eff, "shapes_noise", False)
+
+
+def _mean_only(eff) -> bool:
+    """Whether ``eff`` changes the mean model only (no variance, no noise
+    shape): such an effect must lower the mean model's squared error
+    (:func:`_mean_worse`, :attr:`CandidateScore.energy_change_db`)."""
+    return eff.kind != "variance" and not getattr(eff, "shapes_noise", False)
+
+
+#: a variance effect must lower the held-out NLL in at least this share of the
+#: transmit slots (:func:`slot_share`): it models stationary noise
+MIN_SLOT_SHARE = 0.5
+
+#: a sensor effect is adopted only when its held-out gain exceeds every
+#: acceptable scene-side candidate's by more than this share (:func:`_scene_first`)
+SCENE_MARGIN = 0.1
+
+
+def _scene_first(ranking, best, ok, scene_side):
+    """The best acceptable scene-side candidate in place of a sensor-side
+    ``best`` whose held-out gain it reaches to within :data:`SCENE_MARGIN`;
+    ``best`` otherwise.
+
+    Scene mismatch before sensor effects: the scene-side candidates only
+    approximate how a real scene differs from its mesh (object patterns,
+    points, shifts), while a per-channel sensor effect mimics much of that
+    difference (a per-Tx gain mends a scatterer the mesh puts at a slightly
+    wrong height on a radar whose Tx sit at two heights).  A sensor effect
+    that beats them narrowly has not shown that the sensor, not the scene,
+    is wrong; if it is really there it keeps its gain after the scene is
+    mended and is adopted in a later round."""
+    if scene_side.get(best.name, True):
+        return best
+    scene = [c for c in ranking if ok(c) and scene_side.get(c.name, True)
+             and c.gain >= (1.0 - SCENE_MARGIN) * best.gain]
+    return max(scene, key=lambda c: c.score) if scene else best
+
+
+#: two sensor effects explain "the same residual" when the simpler one's
+#: held-out gain is at least this share of the richer one's (:func:`_parsimonious`)
+PARSIMONY_SHARE = 0.9
+
+
+def _parsimonious(ranking, best, ok, scene_side):
+    """The sensor effect adopted in place of ``best``: the one with the fewest
+    parameters among the acceptable sensor-side candidates that explain
+    nearly what ``best`` explains (held-out gain at least
+    :data:`PARSIMONY_SHARE` of ``best``'s) while ``best``'s surplus over them
+    is less than a scene-side candidate explains in the same round; ``best``
+    itself when there is none, or when ``best`` is scene-side.
+
+    Two sensor effects that explain nearly the same residual differ by what
+    the richer one also mimics: per-Tx and per-Rx delays are a separable
+    phase screen across the array, which steers a scatterer the scene places
+    a little off, so a per-chip beat offset (4 numbers) loses to them (28)
+    by the scene misfit they absorb.  While a scene-side candidate explains
+    more than that surplus, the surplus is left to the scene (scene mismatch
+    before sensor effects); a richer effect that is really there keeps its
+    gain after the simpler one and is adopted in a later round."""
+    if scene_side.get(best.name, True):
+        return best
+    scene = max((c.gain for c in ranking if ok(c) and scene_side.get(c.name, True)), default=0.0)
+    close = [c for c in ranking if ok(c) and not scene_side.get(c.name, True)
+             and c.n_params < best.n_params and c.gain >= PARSIMONY_SHARE * best.gain
+             and best.gain - c.gain < scene]
+    return min(close, key=lambda c: (c.n_params, -c.score)) if close else best
+
+
+def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vetoed=()):
+    """One round's ranking, mean (and scene) candidates first (see the module
+    docstring): ``(ranking, best)`` with ``best`` None when nothing should be
+    adopted.  Screened candidates are left out; ``vetoed`` ones are ranked
+    but not chosen (their adoption made the mean model worse,
+    :data:`MEAN_GUARD_DB`)."""
+    floor = {c.name: max(min_gain, c.gain_floor(tiers.model.ctx)) for c in pool}
+    kinds_of = {c.name: c.kind for c in pool}
+    scene_side = {c.name: c.scene_side for c in pool}
+    mean_only = {c.name for c in pool if _mean_only(c)}
+
+    def ok(c):
+        variance = kinds_of.get(c.name) == "variance"
+        stationary = not variance or c.slot_share >= MIN_SLOT_SHARE
+        predicts_mean = c.name not in mean_only or c.energy_change_db <= 0.0
+        return (c.score > 0 and c.gain_per_sample >= floor.get(c.name, min_gain) and stationary
+                and predicts_mean and c.name not in vetoed)
+
+    ranking = []
+    for kinds in (("basis", "mean"), ("variance",)):
+        group = [c for c in pool if c.kind in kinds and c.name not in screened]
+        if not group:
+            continue
+        ranking = sorted(ranking + tiers.rank(group, penalty, maxiter, progress),
+                         key=lambda c: c.score, reverse=True)
+        best = next((c for c in ranking if ok(c)), None)
+        if best is not None:
+            ranking, best = tiers.on_one_scale(ranking, best, pool, ok, penalty, maxiter, progress)
+        if best is not None:
+            best = _scene_first(ranking, best, ok, scene_side)
+            return ranking, _parsimonious(ranking, best, ok, scene_side)
+    return ranking, None
