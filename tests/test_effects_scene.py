@@ -91,13 +91,16 @@ def test_01_coupling_gradient_matches_finite_differences():
     truth["chip"] = np.array([[1.0, 0.0], [0.8, 0.3], [0.9, -0.4], [1.1, 0.2]])
     meas = clean + coupling_signal(truth, ctx)[None, :, :, None] + _noise(clean.shape, rng)
     m = EffectModel(ctx, meas, clean)
-    comp = m.add(Coupling())
-    assert set(comp.values) == {"delay", "amp", "tx", "rx", "chip"}
-    assert comp.n_params == 3 * 2 + 2 * (3 + 4) + 2 * 4
+    comp = m.add(Coupling(spread=True))
+    assert set(comp.values) == {"delay", "amp", "tx", "rx", "chip", "log_spread"}
+    assert comp.n_params == 3 * 2 + 2 * (3 + 4) + 2 * 4 + 1
     comp.values["delay"] = comp.values["delay"] + np.array([0.05, -0.04])
     comp.values["amp"] = comp.values["amp"] * 0.8
-    err = _check_gradients(m, 0, {"delay": 2e-3, "amp": 1e-3, "tx": 1e-3, "rx": 1e-3,
-                                  "chip": 1e-3})
+    comp.values["log_spread"] = np.array([np.log(0.3)])      # the spread's variance in play
+    # the spread flattens the loss along the channel factors: steps of 4e-3 keep the
+    # float32 loss's rounding out of the central differences
+    err = _check_gradients(m, 0, {"delay": 2e-3, "amp": 1e-3, "tx": 4e-3, "rx": 4e-3,
+                                  "chip": 4e-3, "log_spread": 4e-3})
     assert max(err.values()) < 0.02
 
 
@@ -149,6 +152,67 @@ def test_03_coupling_recovered_from_synthetic_leakage():
     rel = np.linalg.norm(prof - true_prof) / np.linalg.norm(true_prof)
     assert rel < 0.03, rel
     _check_fit(m, ctx, meas, clean, noise)
+
+
+def _non_separable_leak(radar, ctx, rng, rms):
+    """Separable leakage times ``1 + d_tr``, ``d`` complex Gaussian of RMS ``rms``
+    per channel, ``[T, R, N]``, and the realised RMS of ``d``."""
+    T, R = radar.num_tx, radar.num_rx
+    d = rms * (rng.normal(size=(T, R)) + 1j * rng.normal(size=(T, R))) / np.sqrt(2)
+    truth = _leak_truth(radar, rng)
+    truth["amp"] = truth["amp"] * 3.0                                # well above the noise
+    return coupling_signal(truth, ctx) * (1 + d)[..., None], float(np.sqrt(np.mean(np.abs(d) ** 2)))
+
+
+def test_03b_coupling_spread_is_the_channels_deviation_from_the_pattern():
+    """Leakage that deviates per channel from a separable pattern by a planted
+    RMS: the fitted ``rho`` is that RMS; the separable fit (no spread) leaves it
+    as misfit that the spread model scores as variance, so it has the better
+    likelihood on the same fit."""
+    radar = RadarConfig.mmwcas(num_chirps=2, num_samples=128)
+    ctx = EffectContext(radar)                                    # four chips
+    rng = np.random.default_rng(7)
+    clean = _scene(radar)[None]
+    leak, rms = _non_separable_leak(radar, ctx, rng, 0.25)
+    meas = clean + leak[None, :, :, None] + _noise(clean.shape, rng)
+    fits = {}
+    for spread in (True, False):
+        m = EffectModel(ctx, meas, clean)
+        comp = m.add(Coupling(spread=spread))
+        m.fit()
+        fits[spread] = (m, comp)
+    m, comp = fits[True]
+    rho = float(np.exp(comp.values["log_spread"][0]))
+    assert rho == pytest.approx(rms, rel=0.25), (rho, rms)
+    assert comp.effect.summary(comp.values, ctx)["channel_deviation_rms"] == pytest.approx(rho,
+                                                                                      abs=1e-4)
+    assert m.nll() < fits[False][0].nll() - 0.05
+    assert "log_spread" not in fits[False][1].values
+
+
+def test_03c_coupling_spread_passes_through_later_noise_shapers():
+    """``v = sigma^2 s + rho^2 |DFT(leak)|^2 H``: an IF filter after the coupling
+    filters its spread by the filter's power gain, as it filters the floor."""
+    from sionna_mmir.effects.library.if_filter import IFFilter
+
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    ctx = EffectContext(radar)
+    rng = np.random.default_rng(8)
+    clean = _scene(radar)[None]
+    leak, _ = _non_separable_leak(radar, ctx, rng, 0.25)
+    meas = clean + leak[None, :, :, None] + _noise(clean.shape, rng)
+    m = EffectModel(ctx, meas, clean)
+    comp = m.add(Coupling(spread=True))
+    m.add(IFFilter())
+    assert any(c.effect.shapes_noise for c in m.components)
+    _, v = m.mean_variance_numpy()
+    s = m.white_shape_numpy()
+    sigma2 = float(np.exp(m.nuisance.values["log_noise"][0]))
+    lk = np.zeros(ctx.shape, complex)
+    lk[:] = _apply(comp.effect, np.zeros(ctx.shape, complex), comp.values, ctx)
+    rho2 = float(np.exp(2 * comp.values["log_spread"][0]))
+    expected = sigma2 * s + rho2 * np.abs(np.fft.fft(lk, axis=-1, norm="ortho")) ** 2 * s
+    assert np.allclose(v, expected, rtol=2e-3, atol=1e-6 * sigma2)
 
 
 def test_04_coupling_bad_arguments_raise_config_error():

@@ -12,7 +12,11 @@ additions).  Two kinds:
 A mean effect that sits in the receive chain after a noise source (an IF
 filter after the mixer) also shapes that noise: it sets
 ``shapes_noise = True`` and implements :meth:`Effect.noise_gain`, the power
-gain per range bin it applies to the white receiver floor.
+gain per range bin it applies to the white receiver floor.  A mean effect
+that predicts each channel only on average (a leakage pattern shared by the
+channels, from which each channel's own leakage deviates) sets
+``has_spread = True`` and implements :meth:`Effect.spread`, the power of
+that deviation per range bin, which adds to the variance.
 
 Effects run in ``stage`` order: 0 scene (extra paths), 1 RF / per channel
 (gains, delays, coupling), 2 IF (filter), 3 ADC (DC, IQ, clipping).
@@ -158,6 +162,16 @@ class Effect:
         """Power gain per range bin on the white floor ``sigma^2``, broadcastable to
         ``[F, T, R, C, N]`` (a mean effect with ``shapes_noise = True``)."""
         raise NotImplementedError(f"{self.name} does not shape the noise floor")
+
+    #: the effect predicts each channel only on average (see :meth:`spread`)
+    has_spread = False
+
+    def spread(self, p: dict, ctx):
+        """Power per range bin (unitary-DFT domain) by which a mean effect with
+        ``has_spread = True`` is expected to miss a channel, broadcastable to
+        ``[F, T, R, C, N]``; it adds to the variance, filtered by the noise
+        shapers later in the chain."""
+        raise NotImplementedError(f"{self.name} has no spread")
 
     def variance(self, x, X, p: dict, ctx):
         """Variance effect: added noise power per range bin, broadcastable to ``[F, T, R, C, N]``.

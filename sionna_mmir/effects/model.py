@@ -4,14 +4,16 @@ The measured ADC ``y`` is modelled, in the range (unitary DFT) domain, as::
 
     Y[f, t, r, c, k] ~ CN( X[f, t, r, c, k],  v[f, t, r, c, k] )
     x = effects_mean( g * b ),        X = DFT(x)
-    v = sigma^2 s + sum of variance effects,   s = prod of noise gains
+    v = sigma^2 s + sum of variance effects + spreads,   s = prod of noise gains
 
 with ``b`` the base model's ADC (e.g. the fitted scene's render), ``g`` one
 global complex gain and ``sigma^2`` a white noise floor (both nuisance
 parameters, always fitted, never reported as effects); ``s`` is the power
 gain of the mean effects that also filter the receiver noise
 (:meth:`~.base.Effect.noise_gain`, e.g. the IF high-pass), 1 without
-them.  The loss is the mean
+them; a spread is the power by which a mean effect that predicts each
+channel only on average (:meth:`~.base.Effect.spread`, a leakage pattern
+shared by the channels) is expected to miss one.  The loss is the mean
 negative log-likelihood per complex sample over the cells of a mask
 (``|Y - X|^2 / v + log v``), a proper score for both kinds of effect:
 mean effects reduce ``|Y - X|^2``, variance effects shape ``v``.
@@ -364,13 +366,21 @@ class EffectModel:
             if c.effect.kind == "mean":
                 x = c.effect.apply(x, _block(tens, i, c), self.ctx)
         X = ops.dft(x)
-        v = dr.exp(ops.view(tens[(-1, "log_noise")], (1, 1, 1, 1, 1)))
-        for i in self._noise_shapers(order):
-            v = v * self.components[i].effect.noise_gain(_block(tens, i, self.components[i]),
+        gains = {i: self.components[i].effect.noise_gain(_block(tens, i, self.components[i]),
                                                          self.ctx)
+                 for i in self._noise_shapers(order)}
+        v = dr.exp(ops.view(tens[(-1, "log_noise")], (1, 1, 1, 1, 1)))
+        for g in gains.values():
+            v = v * g
         for i in order:
             c = self.components[i]
-            if c.effect.kind == "variance":
+            if c.effect.kind == "mean" and c.effect.has_spread:
+                w = c.effect.spread(_block(tens, i, c), self.ctx)
+                for j, g in gains.items():           # filtered by the shapers after it
+                    if self.components[j].effect.chain_key > c.effect.chain_key:
+                        w = w * g
+                v = v + w
+            elif c.effect.kind == "variance":
                 v = v + c.effect.variance(x, X, _block(tens, i, c), self.ctx)
         return x, X, v
 

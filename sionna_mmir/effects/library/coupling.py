@@ -15,6 +15,16 @@ chip) block (``ctx.tx_chip`` / ``ctx.rx_chip``).  There is no free
 parameter per virtual (tx, rx) channel, so a held-out channel is predicted
 from the others.
 
+A real unit's leakage is not separable: each channel's own leakage deviates
+from the shared pattern (its direct path's length follows its antenna pair,
+package and board tolerances differ; the MMWCAS corner captures' leakage has
+no separable structure beyond a per-chip-pair mean).  With ``spread=True``
+the effect says so: that deviation, of RMS ``rho`` times the pattern, enters the
+variance as ``rho^2 |DFT(leak_tr)[k]|^2`` per channel and range bin
+(:meth:`Coupling.spread`), so the bins the leakage dominates carry the
+uncertainty of a prediction from the other channels instead of a misfit no
+other effect can mend.
+
 The stored amplitudes are referred to the centre frequency ``f_c``:
 ``a_m = A_m exp(j 2 pi f_c tau_m)``, so the model computes
 ``a_m exp(j 2 pi S (t_k - t_c) tau_m)`` and a change of ``tau_m`` moves the
@@ -24,8 +34,9 @@ tone without rotating it (no ``1 / f_c`` ripple of the loss in ``tau``).
 between the factors.
 
 Parameters: ``delay`` ``[K]`` [ns], ``amp`` ``[K, 2]``, ``tx`` ``[T, 2]``,
-``rx`` ``[R, 2]`` (re, im; normalised units) and, with more than one chip,
-``chip`` ``[n_chips^2, 2]``: ``3 K + 2 (T + R)`` (+ ``2 n_chips^2``) numbers.
+``rx`` ``[R, 2]`` (re, im; normalised units), with more than one chip
+``chip`` ``[n_chips^2, 2]``, and with ``spread`` ``log_spread`` ``[1]``
+(``ln rho``): ``3 K + 2 (T + R)`` (+ ``2 n_chips^2``) (+ 1) numbers.
 """
 from __future__ import annotations
 
@@ -169,6 +180,15 @@ def factorise(h, ctx, weight=None, n_iter: int = 50):
     return A * su * sw * sb, u / su, w / sw, B / sb
 
 
+def _deviation(h, A, u, w, B, ctx, seen) -> float:
+    """RMS of the per-channel tone amplitudes ``h [T, R, K]`` about the
+    separable pattern ``A u w B``, relative to the pattern (observed channels)."""
+    model = (u[:, None] * w[None, :] * B[_chip_pair(ctx)])[..., None] * A
+    sel = np.asarray(seen, bool)
+    den = float(np.sum(np.abs(model[sel]) ** 2))
+    return float(np.sqrt(np.sum(np.abs(h[sel] - model[sel]) ** 2) / den)) if den > 0 else 1.0
+
+
 # --------------------------------------------------------------- effect
 class Coupling(Effect):
     """Tx -> Rx leakage: ``K`` short-delay paths, separable channel factors.
@@ -181,6 +201,9 @@ class Coupling(Effect):
         smallest equivalent range ``c tau / 2`` [m] (0.02)
     max_range : float, optional
         largest equivalent range [m] (0.5)
+    spread : bool, optional
+        model each channel's deviation from the separable pattern as
+        variance (default False; see the module docstring)
     """
 
     name = "coupling"
@@ -189,7 +212,11 @@ class Coupling(Effect):
     per_unit = True
     description = "Tx->Rx antenna / on-chip leakage (short-delay paths)"
 
-    def __init__(self, num_paths: int = 2, min_range: float = 0.02, max_range: float = 0.5):
+    #: bounds of ``rho``, the RMS deviation of a channel's leakage from the pattern
+    SPREAD_BOUNDS = (1e-3, 3.0)
+
+    def __init__(self, num_paths: int = 2, min_range: float = 0.02, max_range: float = 0.5,
+                 spread: bool = False):
         if isinstance(num_paths, bool) or int(num_paths) != num_paths or num_paths < 1:
             raise ConfigError(f"Coupling: num_paths must be a positive integer, got {num_paths!r}")
         if not np.isfinite(min_range) or min_range < 0:
@@ -200,6 +227,7 @@ class Coupling(Effect):
         self.num_paths = int(num_paths)
         self.min_range = float(min_range)
         self.max_range = float(max_range)
+        self.has_spread = bool(spread)
 
     def _delay_bounds(self):
         return 2 * self.min_range / SPEED_OF_LIGHT, 2 * self.max_range / SPEED_OF_LIGHT
@@ -222,9 +250,24 @@ class Coupling(Effect):
                  "rx": ParamSpec(_pairs(w), unit="complex factor")}
         if ctx.num_chips > 1:
             specs["chip"] = ParamSpec(_pairs(B), unit="complex factor")
+        if self.has_spread:
+            lo, hi = self.SPREAD_BOUNDS
+            rho = np.clip(_deviation(h, A, u, w, B, ctx, seen), lo, hi)
+            specs["log_spread"] = ParamSpec([np.log(rho)], lower=np.log(lo), upper=np.log(hi),
+                                            unit="ln(RMS deviation / pattern)")
         return specs
 
     def apply(self, x, p, ctx):
+        return ops.cadd(x, self._leak(p, ctx))
+
+    def spread(self, p, ctx):
+        """``rho^2 |DFT(leak_tr)|^2`` ``[1, T, R, 1, N]``: the expected power of a
+        channel's deviation from the separable leakage pattern."""
+        rho2 = dr.exp(2.0 * ops.view(p["log_spread"], (1, 1, 1, 1, 1)))
+        return ops.abs2(ops.dft(self._leak(p, ctx))) * rho2
+
+    def _leak(self, p, ctx):
+        """The separable leakage ``u_t w_r B A_m tone_m`` ``[1, T, R, 1, N]`` (re, im)."""
         radar = ctx.radar
         T, R, N = radar.num_tx, radar.num_rx, radar.num_samples
         K = self.num_paths
@@ -244,17 +287,20 @@ class Coupling(Effect):
             b = tuple(ops.mi.TensorXf(dr.gather(mi.Float, p["chip"].array, idx * 2 + j), shape)
                       for j in range(2))
             g = ops.cmul(g, b)
-        return ops.cadd(x, ops.cmul(g, tone))
+        return ops.cmul(g, tone)
 
     def summary(self, p, ctx):
         tau = np.asarray(p["delay"], np.float64) * NS
         A = _cplx(p["amp"]) * np.exp(-2j * np.pi * ctx.radar.center_frequency * tau)
         g = channel_factor(p, ctx)
         lvl = np.abs(g)[..., None] * np.abs(A)
-        return {"delay_ns": (tau / NS).round(4).tolist(),
+        out = {"delay_ns": (tau / NS).round(4).tolist(),
                 "range_m": (tau * SPEED_OF_LIGHT / 2).round(4).tolist(),
                 "amplitude_abs": np.abs(A).round(6).tolist(),
                 "amplitude_phase_deg": np.degrees(np.angle(A)).round(2).tolist(),
                 "channel_level_db_range": [
                     round(float(20 * np.log10(max(lvl.min(), 1e-30))), 2),
                     round(float(20 * np.log10(max(lvl.max(), 1e-30))), 2)]}
+        if "log_spread" in p:
+            out["channel_deviation_rms"] = round(float(np.exp(np.asarray(p["log_spread"])[0])), 4)
+        return out
