@@ -76,27 +76,44 @@ def test_03_speculative_trials_keep_what_trying_them_one_by_one_keeps():
             best = r[0]
     assert len(ref_log) >= 2                                 # more than one trial was kept
     n_ref = sum(1 for i in range(len(start)) if eligible(ref, i))
-    for width in (1, 2, 3, 10):
+    for width in (1, 2, 3, 10):                     # processes ahead of the reader
         pool = _Batches(width)
         spec = _Toy(start)
         spec_log = []
         got = _in_order(spec, _toy_task, eligible, _toy_task(spec, 0, 0)[0] + 0.1, 0, pool,
                         keep_into(spec, spec_log))
         assert spec_log == ref_log and spec.components == ref.components and got == best
-        assert max(pool.batches) <= width                   # never wider than the pool
         if width == 1:                                      # nothing run in vain
             assert sum(pool.batches) == n_ref
 
 
 class _Batches:
-    """A serial pool of a given width that records the size of every batch."""
+    """A serial stand-in for a pool of ``workers`` processes: ``first`` runs
+    ``workers`` tasks ahead of the one it reads (what runs in vain on
+    processes) and records how many tasks each call ran."""
 
     def __init__(self, workers):
         self.workers, self.batches = workers, []
 
-    def map(self, fn, shared, tasks, done=None):
-        self.batches.append(len(tasks))
-        return [fn(shared, *t) for t in tasks]
+    def first(self, fn, shared, tasks, accept):
+        results = []
+        for i, t in enumerate(tasks):
+            results += [fn(shared, *u) for u in tasks[len(results):i + self.workers]]
+            if accept(results[i]):
+                self.batches.append(len(results))
+                return i, results[i]
+        self.batches.append(len(results))
+        return None
+
+
+def test_03b_first_accepted_task_on_processes_and_here():
+    """``FitPool.first`` returns the first accepted task in order, on two
+    processes as in this process, and None when none is accepted."""
+    import operator
+
+    for pool in (FitPool(1), FitPool(2)):
+        assert pool.first(operator.pow, 2, [(k,) for k in range(6)], lambda r: r >= 8) == (3, 8)
+        assert pool.first(operator.pow, 2, [(k,) for k in range(4)], lambda r: r > 100) is None
 
 
 def _measured_and_base():

@@ -57,25 +57,24 @@ def _in_order(model: EffectModel, task, eligible, best: float, maxiter: int, poo
     in index order, each kept (``keep(i, result)``) when it lowers the NLL
     below ``best`` -- the next trial then starts from the kept model.
 
-    The trials are run speculatively on ``pool``, as many at once as it has
-    workers: the next few start from the current model together, the first
-    one that helps is kept, and the ones after it run again from the new
-    model.  The outcome is that of trying them one by one; a trial is wasted
-    only when an earlier one in its batch is kept.  Returns the model's NLL."""
+    The trials are run speculatively on ``pool``
+    (:meth:`~.workers.FitPool.first`): all that remain start from the
+    current model, the first one (in index order) that helps is kept, the
+    ones not yet started are cancelled, and those after it run again from
+    the new model.  The outcome is that of trying them one by one; on one
+    process nothing runs in vain.  Returns the model's NLL."""
     start = 0
     while True:
         idx = [i for i in range(start, len(model.components)) if eligible(model, i)]
         if not idx:
             return best
-        idx = idx[:max(pool.workers, 1)]
-        results = pool.map(task, model, [(i, maxiter) for i in idx])
-        hit = next(((i, r) for i, r in zip(idx, results) if r[0] < best - 1e-6), None)
+        bar = best - 1e-6
+        hit = pool.first(task, model, [(i, maxiter) for i in idx], lambda r: r[0] < bar)
         if hit is None:
-            start = idx[-1] + 1
-            continue
-        i, r = hit
-        keep(i, r)
-        best, start = r[0], i + 1
+            return best
+        j, r = hit
+        keep(idx[j], r)
+        best, start = r[0], idx[j] + 1
 
 
 def _restart(model: EffectModel, best: float, maxiter: int, pool=SERIAL) -> float:

@@ -170,11 +170,57 @@ class FitPool:
         finally:
             os.remove(path)
 
+    def first(self, fn, shared, tasks, accept):
+        """``(i, fn(shared, *tasks[i]))`` for the first ``i`` in task order whose
+        result ``accept`` takes, or None: what running the tasks one by one
+        and stopping at the first accepted one returns.
+
+        On worker processes every task is started at once and the results
+        are read in order; once one is accepted the tasks not yet started are
+        cancelled (those already running finish and are discarded)."""
+        tasks = [tuple(t) for t in tasks]
+        if self.workers <= 1 or len(tasks) <= 1:
+            return _serial_first(fn, shared, tasks, accept)
+        from concurrent.futures import wait
+        from concurrent.futures.process import BrokenProcessPool
+
+        path = os.path.join(_tmpdir(), f"{uuid.uuid4().hex}.pkl")
+        with open(path, "wb") as f:
+            pickle.dump(shared, f, protocol=pickle.HIGHEST_PROTOCOL)
+        futures = []
+        try:
+            ex = _executor(self.workers)
+            futures = [ex.submit(_call, fn, path, t) for t in tasks]
+            for i, fut in enumerate(futures):
+                r = fut.result()
+                if accept(r):
+                    return i, r
+            return None
+        except BrokenProcessPool:
+            warnings.warn("a fit worker process died; running its tasks in this process",
+                          RuntimeWarning, stacklevel=2)
+            _EXECUTORS.pop(self.workers, None)
+            futures = []
+            return _serial_first(fn, shared, tasks, accept)
+        finally:
+            for fut in futures:
+                fut.cancel()
+            wait(futures)                    # the shared file outlives every started task
+            os.remove(path)
+
     def __getstate__(self):
         return {"workers": self.workers}
 
     def __setstate__(self, state):
         self.workers = state["workers"]
+
+
+def _serial_first(fn, shared, tasks, accept):
+    for i, t in enumerate(tasks):
+        r = fn(shared, *t)
+        if accept(r):
+            return i, r
+    return None
 
 
 def _serial(fn, shared, tasks, done):
