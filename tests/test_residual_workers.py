@@ -9,13 +9,15 @@ import numpy as np
 import pytest
 
 from sionna_mmir.effects import EffectContext, EffectModel
+from sionna_mmir.effects.model import Component
 from sionna_mmir.effects.library.channel_gain import ChannelGain
 from sionna_mmir.effects.library.noise_floor import NoiseFloor
 from sionna_mmir.effects.library.scatterer import MissingScatterer
 from sionna_mmir.errors import ConfigError
 from sionna_mmir.radar.config import RadarConfig
 from sionna_mmir.residual import diagnose
-from sionna_mmir.residual.adoption import _in_order
+from sionna_mmir.residual import adoption
+from sionna_mmir.residual.adoption import _effect_position, _in_order, _keep
 from sionna_mmir.residual.workers import FitPool, available_cores, check_workers
 
 from helpers import point_targets_adc
@@ -41,50 +43,100 @@ def test_02_pool_returns_results_in_task_order_and_reports_each_task_once():
     assert pickle.loads(pickle.dumps(FitPool(2))).workers == 2
 
 
+class _Eff:
+    """A toy effect: only its identity matters."""
+
+    kind = "mean"
+
+    def __init__(self, name):
+        self.name = name
+
+
 class _Toy:
-    """A stand-in model: ``components`` are numbers, a trial's NLL depends on all."""
+    """A stand-in model whose components hold one number each; the NLL of a
+    trial falls with every even number in the model."""
 
-    def __init__(self, comps):
-        self.components = list(comps)
+    def __init__(self, values):
+        self.components = [Component(effect=_Eff(f"e{k}"), specs={}, values={"v": np.array(v)})
+                           for k, v in enumerate(values)]
+        self.nuisance = Component(effect=None, specs={}, values={})
+
+    def copy(self):
+        new = _Toy([])
+        new.components = [c.copy() for c in self.components]
+        new.nuisance = self.nuisance.copy()
+        return new
+
+    def remove(self, comp):
+        self.components.remove(comp)
+
+    def numbers(self):
+        return [int(c.values["v"]) for c in self.components]
+
+    def nll(self):
+        return 10.0 - sum(1 for v in self.numbers() if v % 2 == 0)
 
 
-def _toy_task(model, i, maxiter):
-    c = model.components
-    # trial i lowers the NLL when its component is odd, by more when earlier ones were kept (even)
-    return (10.0 - sum(1 for v in c if v % 2 == 0) - (0.5 if c[i] % 2 else -1.0), i)
+def _toy_restart(model, i, maxiter):
+    """An odd number restarts to the next even one (a better NLL), an even one
+    to an odd one (worse)."""
+    trial = model.copy()
+    trial.components[i].values = {"v": np.array(int(trial.components[i].values["v"]) + 1)}
+    return trial.nll() - 0.5 * (i == 0), trial.nuisance.values, \
+        [c.values for c in trial.components]
 
 
-def test_03_speculative_trials_keep_what_trying_them_one_by_one_keeps():
-    start = [1, 4, 3, 5, 8, 7]
-    eligible = (lambda m, i: i != 1)
+def _toy_backfit(model, i, maxiter):
+    """The component moves to the end as a new effect with its number + 1."""
+    trial = model.copy()
+    old = trial.components[i]
+    trial.remove(old)
+    new = Component(effect=_Eff(old.effect.name + "'"), specs={},
+                    values={"v": np.array(int(old.values["v"]) + 1)})
+    trial.components.append(new)
+    return (trial.nll(), trial.nuisance.values, [c.values for c in trial.components],
+            new.effect, new.specs)
 
-    def keep_into(model, log):
-        def keep(i, r):
-            model.components[i] += 1           # kept: the component changes (odd -> even)
-            log.append(i)
-        return keep
 
-    # one by one, the reference
-    ref = _Toy(start)
-    best, ref_log = _toy_task(ref, 0, 0)[0] + 0.1, []
-    for i in range(len(ref.components)):
-        if not eligible(ref, i):
-            continue
-        r = _toy_task(ref, i, 0)
+def _one_by_one(model, plan, best, tasks):
+    """The reference: each planned trial in turn, from what the kept ones left."""
+    tried = []
+    for kind, eff in plan:
+        i = _effect_position(model, eff)
+        r = tasks[kind](model, i, 0)
+        tried.append(eff)
         if r[0] < best - 1e-6:
-            keep_into(ref, ref_log)(i, r)
+            _keep(model, kind, i, r)
             best = r[0]
-    assert len(ref_log) >= 2                                 # more than one trial was kept
-    n_ref = sum(1 for i in range(len(start)) if eligible(ref, i))
+    return best, tried
+
+
+def test_03_speculative_trials_keep_what_trying_them_one_by_one_keeps(monkeypatch):
+    """Restarts and backfits as one sequence: the pool's speculation ends as the
+    one-by-one reference, for pools of 1, 2, 3 and 10 processes; every planned
+    effect is tried once although kept backfits move effects to the end."""
+    tasks = {"restart": _toy_restart, "backfit": _toy_backfit}
+    monkeypatch.setattr(adoption, "_TRIALS", tasks)
+    start = [1, 4, 3, 5, 8, 7]
+
+    def plan_of(m):
+        c = m.components
+        return ([("restart", c[0].effect), ("restart", c[3].effect)]
+                + [("backfit", x.effect) for k, x in enumerate(c) if k != 1])
+
+    ref = _Toy(start)
+    plan = plan_of(ref)
+    best, tried = _one_by_one(ref, plan, ref.nll(), tasks)
+    assert tried == [e for _, e in plan]                     # each planned trial once
+    assert ref.numbers() != start and best < _Toy(start).nll() - 2   # several kept
     for width in (1, 2, 3, 10):                     # processes ahead of the reader
         pool = _Batches(width)
         spec = _Toy(start)
-        spec_log = []
-        got = _in_order(spec, _toy_task, eligible, _toy_task(spec, 0, 0)[0] + 0.1, 0, pool,
-                        keep_into(spec, spec_log))
-        assert spec_log == ref_log and spec.components == ref.components and got == best
+        got = _in_order(spec, plan_of(spec), spec.nll(), 0, pool)
+        assert spec.numbers() == ref.numbers() and got == best
+        assert [c.effect.name for c in spec.components] == [c.effect.name for c in ref.components]
         if width == 1:                                      # nothing run in vain
-            assert sum(pool.batches) == n_ref
+            assert sum(pool.batches) == len(plan)
 
 
 class _Batches:

@@ -52,74 +52,79 @@ def _backfit_task(model, i: int, maxiter: int) -> tuple:
     return _trial_values(trial) + (new.effect, new.specs)
 
 
-def _in_order(model: EffectModel, task, eligible, best: float, maxiter: int, pool, keep) -> float:
-    """The trials ``task(model, i)`` for the ``eligible(model, i)`` components,
-    in index order, each kept (``keep(i, result)``) when it lowers the NLL
-    below ``best`` -- the next trial then starts from the kept model.
+_TRIALS = {"restart": _restart_task, "backfit": _backfit_task}
+
+
+def _trial_task(model, kind: str, i: int, maxiter: int) -> tuple:
+    """Worker task: the ``kind`` trial (``"restart"`` or ``"backfit"``) of component ``i``."""
+    return _TRIALS[kind](model, i, maxiter)
+
+
+def _keep(model: EffectModel, kind: str, i: int, result) -> None:
+    """Give ``model`` what the kept ``kind`` trial of component ``i`` fitted
+    (a backfitted effect is re-added at the end)."""
+    trial = model.copy()
+    if kind == "backfit":
+        trial.remove(trial.components[i])
+        trial.components.append(_Component(effect=result[3], specs=result[4], values={}))
+    _take_values(trial, result[1], result[2])
+    model.components, model.nuisance = trial.components, trial.nuisance
+
+
+def _effect_position(model: EffectModel, effect) -> int:
+    """Index of the component holding ``effect`` (by identity)."""
+    return next(i for i, c in enumerate(model.components) if c.effect is effect)
+
+
+def _in_order(model: EffectModel, plan, best: float, maxiter: int, pool) -> float:
+    """The trials ``plan = [(kind, effect), ...]`` in order, each kept when it
+    lowers the NLL below ``best``; every trial starts from the model the
+    earlier kept ones left.
 
     The trials are run speculatively on ``pool``
     (:meth:`~.workers.FitPool.first`): all that remain start from the
-    current model, the first one (in index order) that helps is kept, the
+    current model, the first one (in plan order) that helps is kept, the
     ones not yet started are cancelled, and those after it run again from
-    the new model.  The outcome is that of trying them one by one; on one
-    process nothing runs in vain.  Returns the model's NLL."""
-    start = 0
-    while True:
-        idx = [i for i in range(start, len(model.components)) if eligible(model, i)]
-        if not idx:
-            return best
+    the kept model.  The outcome is that of trying them one by one; on one
+    process nothing runs in vain.  Effects are followed by identity, so a
+    backfitted effect moving to the end of the chain changes no other
+    trial.  Returns the model's NLL."""
+    todo = list(plan)
+    while todo:
+        tasks = [(kind, _effect_position(model, eff), maxiter) for kind, eff in todo]
         bar = best - 1e-6
-        hit = pool.first(task, model, [(i, maxiter) for i in idx], lambda r: r[0] < bar)
+        hit = pool.first(_trial_task, model, tasks, lambda r: r[0] < bar)
         if hit is None:
-            return best
+            break
         j, r = hit
-        keep(idx[j], r)
-        best, start = r[0], idx[j] + 1
-
-
-def _restart(model: EffectModel, best: float, maxiter: int, pool=SERIAL) -> float:
-    """Refit from a fresh start (zero values) the components that allow it
-    (e.g. a pose offset fitted before a sensor effect bent it); keep the
-    restart when the NLL drops.  Returns the model's NLL."""
-    def keep(i, r):
-        trial = model.copy()
-        _take_values(trial, r[1], r[2])
-        model.components, model.nuisance = trial.components, trial.nuisance
-
-    return _in_order(model, _restart_task,
-                     lambda m, i: getattr(m.components[i].effect, "restartable", False),
-                     best, maxiter, pool, keep)
+        _keep(model, tasks[j][0], tasks[j][1], r)
+        best, todo = r[0], todo[j + 1:]
+    return best
 
 
 def _backfit(model: EffectModel, newest, maxiter: int, pool=SERIAL):
-    """Re-initialise every earlier adopted effect against the current model
-    without it, refit all jointly, and keep the change when the NLL drops.
+    """Restart and re-initialise the earlier adopted effects, refit all
+    jointly after each, and keep every change that lowers the NLL.
 
-    An effect adopted while another one was still missing is initialised
-    (and fitted) to absorb part of that one's signature: per-channel delays
-    adopted before a missing scatterer bend to its phases, and the scatterer
-    proposed afterwards lands off its true position.  Once the newer effect
-    is in, the earlier one's data-driven initialisation from the cleaner
-    residual usually finds the right basin (backfitting).  Returns the
-    newest component (the same object unless a trial replaced the list).
+    Restarts first: the components that allow it (e.g. a pose offset fitted
+    before a sensor effect bent it) refitted from a fresh start.  Then
+    backfitting: an effect adopted while another one was still missing is
+    initialised (and fitted) to absorb part of that one's signature:
+    per-channel delays adopted before a missing scatterer bend to its
+    phases, and the scatterer proposed afterwards lands off its true
+    position.  Once the newer effect is in, the earlier one's data-driven
+    initialisation from the cleaner residual usually finds the right basin.
+    Every earlier effect (not scene-side, not held fixed) gets one trial, in
+    chain position order; the trials are one sequence (:func:`_in_order`).
+    Returns the newest component (the same object unless a trial replaced
+    the list).
     """
-    k = [_position(model, newest)]
-    best = _restart(model, model.nll(), maxiter, pool)
-
-    def eligible(m, i):
-        c = m.components[i]
-        return i != k[0] and c.effect.kind != "basis" and not _frozen(c)
-
-    def keep(i, r):
-        trial = model.copy()
-        trial.remove(trial.components[i])
-        trial.components.append(_Component(effect=r[3], specs=r[4], values={}))
-        _take_values(trial, r[1], r[2])
-        model.components, model.nuisance = trial.components, trial.nuisance
-        k[0] = k[0] if k[0] < i else k[0] - 1        # the re-added effect moved to the end
-
-    _in_order(model, _backfit_task, eligible, best, maxiter, pool, keep)
-    return model.components[k[0]]
+    plan = [("restart", c.effect) for c in model.components
+            if getattr(c.effect, "restartable", False)]
+    plan += [("backfit", c.effect) for c in model.components
+             if c is not newest and c.effect.kind != "basis" and not _frozen(c)]
+    _in_order(model, plan, model.nll(), maxiter, pool)
+    return model.components[_effect_position(model, newest.effect)]
 
 
 def _position(model: EffectModel, comp) -> int:
