@@ -105,6 +105,7 @@ class EffectModel:
         self.b = b * self.base_gain
         self.Y_numpy = np.fft.fft(y, axis=-1, norm="ortho")
         self.Y = ops.tensor(self.Y_numpy)
+        self.y_t = ops.tensor(y)
         self.b_t = ops.tensor(self.b)
         #: per-object base components (scaled like ``b``) when the context has a basis
         self.basis_t = self._basis_tensors()
@@ -232,6 +233,7 @@ class EffectModel:
         new.b = self.b.mean(axis=3, keepdims=True)
         new.Y_numpy = np.fft.fft(new.y, axis=-1, norm="ortho")
         new.Y = ops.tensor(new.Y_numpy)
+        new.y_t = ops.tensor(new.y)
         new.b_t = ops.tensor(new.b)
         new.basis_t = new._basis_tensors()
         new.nuisance = self.nuisance.copy()
@@ -275,7 +277,7 @@ class EffectModel:
         self.components.remove(comp)
 
     #: attributes rebuilt from their NumPy sources when a model is unpickled
-    _TENSORS = ("Y", "b_t", "basis_t")
+    _TENSORS = ("Y", "y_t", "b_t", "basis_t")
 
     def __getstate__(self):
         """Pickle without the Dr.Jit tensors (rebuilt from ``Y_numpy``, ``b``
@@ -285,6 +287,7 @@ class EffectModel:
     def __setstate__(self, state):
         self.__dict__.update(state)
         self.Y = ops.tensor(self.Y_numpy)
+        self.y_t = ops.tensor(self.y)
         self.b_t = ops.tensor(self.b)
         self.basis_t = self._basis_tensors()
 
@@ -352,11 +355,10 @@ class EffectModel:
             e = np.array([float(np.sum(np.abs(ops.to_numpy(b)) ** 2)) for b in B])
         return e / max(e.sum(), 1e-300)
 
-    def _forward(self, tens: dict, frozen=None):
-        """``(x, X, v)`` from tensors ``tens[(i, name)]`` (``i = -1`` nuisance)."""
+    def _mean(self, tens: dict, order, frozen=None):
+        """The mean ADC ``x`` (time domain) from tensors ``tens[(i, name)]``."""
         g = tens[(-1, "gain")]
         one = (1, 1, 1, 1, 1)
-        order = self._order()
         b = self._base(tens, order, frozen)
         x = (ops.cmul(b, (ops.column(ops.view(g, (1, 2)), 0, one),
                           ops.column(ops.view(g, (1, 2)), 1, one)))
@@ -365,6 +367,18 @@ class EffectModel:
             c = self.components[i]
             if c.effect.kind == "mean":
                 x = c.effect.apply(x, _block(tens, i, c), self.ctx)
+        return x
+
+    def _white(self) -> bool:
+        """Whether the variance is the white floor alone (no noise shaper, spread
+        or variance effect): the NLL is then the same in the time domain."""
+        return not any(c.effect.kind == "variance" or c.effect.has_spread
+                       or getattr(c.effect, "shapes_noise", False) for c in self.components)
+
+    def _forward(self, tens: dict, frozen=None):
+        """``(x, X, v)`` from tensors ``tens[(i, name)]`` (``i = -1`` nuisance)."""
+        order = self._order()
+        x = self._mean(tens, order, frozen)
         X = ops.dft(x)
         gains = {i: self.components[i].effect.noise_gain(_block(tens, i, self.components[i]),
                                                          self.ctx)
@@ -516,7 +530,16 @@ class EffectModel:
         return (float(np.mean(cell_nll)), cell_nll) if per_cell else float(np.mean(cell_nll))
 
     def loss(self, tens, mask, n, frozen=None):
-        """Masked mean NLL ``sum mask (|Y - X|^2 / v + log v) / n`` as a Dr.Jit value (AD)."""
+        """Masked mean NLL ``sum mask (|Y - X|^2 / v + log v) / n`` as a Dr.Jit value (AD).
+
+        With a white floor alone (:meth:`_white`) it is computed in the time
+        domain, ``sum mask (|y - x|^2 / sigma^2 + log sigma^2) / n``, equal by
+        Parseval (the mask holds whole rows): no DFT and its gradient."""
+        if self._white():
+            x = self._mean(tens, self._order(), frozen)
+            r2 = ops.abs2((self.y_t[0] - x[0], self.y_t[1] - x[1]))
+            ln_v = ops.view(tens[(-1, "log_noise")], (1, 1, 1, 1, 1))
+            return dr.sum((r2 * dr.exp(-ln_v) + ln_v) * mask, axis=None) / n
         _, X, v = self._forward(tens, frozen)
         r2 = ops.abs2((self.Y[0] - X[0], self.Y[1] - X[1]))
         return dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / n

@@ -299,9 +299,14 @@ class MovingScatterer(Effect):
         P = [r * ca, r * sa, 0.0 * r]
         static = dr_ref_phase(geo, P, P, r, r)                                   # [F, T, R, 1, N]
         kv = ops.tensor(velocity_phase(ctx).reshape(1, T, 1, C, N))
-        phase = static + ops.view(p["velocity"], lead) * kv                       # [F, T, R, C, N]
         amp = (ops.column(p["amp"], 0, lead), ops.column(p["amp"], 1, lead))
-        return ops.cadd(x, ops.cmul(ops.cis(phase), amp))
+        # exp(j (static + v kv)) as the product of its two factors, each evaluated
+        # once: the sines and cosines are taken on [F, T, R, 1, N] and
+        # [F, T, 1, C, N], not on every sample (and not again in the backward)
+        near = ops.cmul(ops.cis(static), amp)                                     # [F, T, R, 1, N]
+        track = ops.cis(ops.view(p["velocity"], lead) * kv)                      # [F, T, 1, C, N]
+        dr.eval(near, track)
+        return ops.cadd(x, ops.cmul(near, track))
 
     def silenced(self, values):
         """The mover with zero amplitude (its track kept)."""
