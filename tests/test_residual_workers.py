@@ -3,6 +3,7 @@ the settings, the pool's task order, and a diagnosis that is the same on
 one process and on two."""
 from __future__ import annotations
 
+import os
 import pickle
 
 import numpy as np
@@ -204,3 +205,45 @@ def test_05_diagnosis_on_two_processes_is_the_diagnosis_on_one():
         assert [c.to_dict() for c in a.candidates] == [c.to_dict() for c in b.candidates]
         assert a.after == b.after
     assert one.final == two.final
+
+
+_ORPHAN_SCRIPT = """
+import os, sys
+from sionna_mmir.residual.workers import FitPool
+
+def pid(shared, k):
+    return os.getpid()
+
+if __name__ == "__main__":
+    print(*sorted(set(FitPool(2).map(pid, None, [(k,) for k in range(8)]))), flush=True)
+    sys.stdin.read()                       # wait to be killed
+"""
+
+
+def test_07_workers_exit_when_their_loop_is_killed(tmp_path):
+    """A loop killed outright (SIGKILL: no clean-up runs) leaves no worker behind."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "loop.py"
+    script.write_text(_ORPHAN_SCRIPT)
+    proc = subprocess.Popen([sys.executable, str(script)], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    pids = [int(p) for p in proc.stdout.readline().split()]
+    assert pids and proc.pid not in pids
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+
+    def alive(pid):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+
+    deadline = time.time() + 20
+    while any(alive(p) for p in pids) and time.time() < deadline:
+        time.sleep(0.2)
+    assert not any(alive(p) for p in pids)

@@ -537,6 +537,7 @@ class EffectModel:
         Parseval (the mask holds whole rows): no DFT and its gradient."""
         if self._white():
             x = self._mean(tens, self._order(), frozen)
+            dr.eval(x[0], x[1])          # once, as the DFT's input would be
             r2 = ops.abs2((self.y_t[0] - x[0], self.y_t[1] - x[1]))
             ln_v = ops.view(tens[(-1, "log_noise")], (1, 1, 1, 1, 1))
             return dr.sum((r2 * dr.exp(-ln_v) + ln_v) * mask, axis=None) / n

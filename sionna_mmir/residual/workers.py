@@ -22,6 +22,7 @@ import os
 import pickle
 import shutil
 import tempfile
+import time
 import uuid
 import warnings
 
@@ -68,14 +69,24 @@ def one_blas_thread():
 
 
 def _init_worker():
-    """A worker is one core's worth of work: BLAS and Dr.Jit on one thread."""
+    """A worker is one core's worth of work: BLAS and Dr.Jit on one thread;
+    it exits when its parent is gone (a killed loop leaves no process)."""
+    import threading
+
     from ..utils.backend import init_backend
 
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
     _LOADED["blas"] = one_blas_thread()
     init_backend()
     import drjit as dr
 
     dr.set_thread_count(1)
+
+
+def _exit_with_parent(ppid: int, period: float = 1.0) -> None:
+    while os.getppid() == ppid:
+        time.sleep(period)
+    os._exit(0)
 
 
 def _call(fn, path, args):
