@@ -18,6 +18,7 @@ round: the pool is dropped and the tasks are run again in this process.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import os
 import pickle
 import shutil
@@ -162,24 +163,17 @@ class FitPool:
         from concurrent.futures import as_completed
         from concurrent.futures.process import BrokenProcessPool
 
-        path = os.path.join(_tmpdir(), f"{uuid.uuid4().hex}.pkl")
-        with open(path, "wb") as f:
-            pickle.dump(shared, f, protocol=pickle.HIGHEST_PROTOCOL)
         try:
-            ex = _executor(self.workers)
-            futures = {ex.submit(_call, fn, path, t): i for i, t in enumerate(tasks)}
-            for fut in as_completed(futures):
-                fut.result()
-                if done is not None:
-                    done(futures[fut])
-            return [fut.result() for fut in futures]
+            with self._on_workers(shared) as (ex, path):
+                futures = {ex.submit(_call, fn, path, t): i for i, t in enumerate(tasks)}
+                for fut in as_completed(futures):
+                    fut.result()
+                    if done is not None:
+                        done(futures[fut])
+                return [fut.result() for fut in futures]
         except BrokenProcessPool:
-            warnings.warn("a fit worker process died; running its tasks in this process",
-                          RuntimeWarning, stacklevel=2)
-            _EXECUTORS.pop(self.workers, None)
+            self._died()
             return _serial(fn, shared, tasks, done)
-        finally:
-            os.remove(path)
 
     def first(self, fn, shared, tasks, accept):
         """``(i, fn(shared, *tasks[i]))`` for the first ``i`` in task order whose
@@ -195,29 +189,36 @@ class FitPool:
         from concurrent.futures import wait
         from concurrent.futures.process import BrokenProcessPool
 
+        try:
+            with self._on_workers(shared) as (ex, path):
+                futures = [ex.submit(_call, fn, path, t) for t in tasks]
+                try:
+                    return next(((i, r) for i, r in enumerate(f.result() for f in futures)
+                                 if accept(r)), None)
+                finally:
+                    for fut in futures:
+                        fut.cancel()
+                    wait(futures)            # the shared file outlives every started task
+        except BrokenProcessPool:
+            self._died()
+            return _serial_first(fn, shared, tasks, accept)
+
+    @contextlib.contextmanager
+    def _on_workers(self, shared):
+        """The process pool and the path of ``shared``, pickled once for all
+        tasks of a call (removed after it)."""
         path = os.path.join(_tmpdir(), f"{uuid.uuid4().hex}.pkl")
         with open(path, "wb") as f:
             pickle.dump(shared, f, protocol=pickle.HIGHEST_PROTOCOL)
-        futures = []
         try:
-            ex = _executor(self.workers)
-            futures = [ex.submit(_call, fn, path, t) for t in tasks]
-            for i, fut in enumerate(futures):
-                r = fut.result()
-                if accept(r):
-                    return i, r
-            return None
-        except BrokenProcessPool:
-            warnings.warn("a fit worker process died; running its tasks in this process",
-                          RuntimeWarning, stacklevel=2)
-            _EXECUTORS.pop(self.workers, None)
-            futures = []
-            return _serial_first(fn, shared, tasks, accept)
+            yield _executor(self.workers), path
         finally:
-            for fut in futures:
-                fut.cancel()
-            wait(futures)                    # the shared file outlives every started task
             os.remove(path)
+
+    def _died(self):
+        warnings.warn("a fit worker process died; running its tasks in this process",
+                      RuntimeWarning, stacklevel=3)
+        _EXECUTORS.pop(self.workers, None)
 
     def __getstate__(self):
         return {"workers": self.workers}
