@@ -81,6 +81,17 @@ def _nll_ad_grad(m, i, key):
     return np.asarray(dr.grad(tens[(i, key)]), np.float64).reshape(shape)
 
 
+def nll_central_difference(m, comp, key, base, d, h) -> float:
+    """``(NLL(base + h d) - NLL(base - h d)) / 2h`` for block ``key`` of ``comp``
+    (restored to ``base`` afterwards)."""
+    comp.values[key] = base + h * d
+    up = m.nll()
+    comp.values[key] = base - h * d
+    down = m.nll()
+    comp.values[key] = base
+    return (up - down) / (2 * h)
+
+
 def check_nll_gradients(m, i, steps, seed=0):
     """AD directional derivative of the NLL along a random +-1 direction per block
     vs the central difference with step ``steps[key]`` (values kept float32-exact)."""
@@ -98,12 +109,7 @@ def check_nll_gradients(m, i, steps, seed=0):
             g = _nll_ad_grad(m, i, key)
         d = rng.choice([-1.0, 1.0], size=val.shape)
         h = 2.0 ** np.round(np.log2(h_target))
-        comp.values[key] = val + h * d
-        up = m.nll()
-        comp.values[key] = val - h * d
-        down = m.nll()
-        comp.values[key] = val
-        fd = (up - down) / (2 * h)
+        fd = nll_central_difference(m, comp, key, val, d, h)
         ad = float(np.sum(g * d))
         errors[key] = abs(ad - fd) / abs(fd)
         assert abs(fd) > 1e-3, (key, fd)
