@@ -771,9 +771,11 @@ def test_29_if_filter_leaves_a_white_floor_white():
     assert np.min(s) > 0.9
 
 
-def test_30_row_extension_and_crop_match_the_dense_matrix_and_its_adjoint():
-    # reference: the extension as one dense [N + 2m, N] matrix product and the
-    # crop as a selection matrix, forward and adjoint written out in NumPy
+def test_30_filtered_rows_match_dense_matrices_and_their_adjoints():
+    # reference: y_k = S F^H diag(H_k) F E x written out as dense NumPy
+    # matrices (E the extension, F the unitary DFT, S the crop or the
+    # first-sample selection); the adjoints in x and H_k are the transposed
+    # products of that same chain, not the operator's own backward
     from sionna_mmir.effects.library._sensor_common import RowExtension
 
     rng = np.random.default_rng(3)
@@ -782,30 +784,40 @@ def test_30_row_extension_and_crop_match_the_dense_matrix_and_its_adjoint():
     tones = sum(a * np.exp(2j * np.pi * f * t) for a, f in ((1.0, 0.061), (0.4, -0.173)))
     x = (tones * (rng.normal(size=(2, 3, 1, 1)) + 1j * rng.normal(size=(2, 3, 1, 1))))
     ext = RowExtension(m, 6).fit(x)
-    E = ext.matrix
-    assert E is not None and E.shape == (N + 2 * m, N)
-    z = ops.tensor(x)
-    for c in z:
-        dr.enable_grad(c)
-    xe = ext.extend(z, E)
-    np.testing.assert_allclose(ops.to_numpy(xe), x @ E.T, atol=2e-5)
-    w = rng.normal(size=xe[0].shape) + 1j * rng.normal(size=xe[0].shape)
-    loss = dr.sum(ops.abs2(ops.cadd(xe, ops.tensor(w))), axis=None)       # |xe + w|^2
-    dr.backward(loss)
-    g = np.asarray(dr.grad(z[0]), np.float64) + 1j * np.asarray(dr.grad(z[1]), np.float64)
-    np.testing.assert_allclose(g, 2 * (x @ E.T + w) @ np.conj(E), rtol=1e-4, atol=1e-3)
-
-    S = np.zeros((N, N + 2 * m))
-    S[np.arange(N), m + np.arange(N)] = 1.0
-    ye = rng.normal(size=(2, 3, 1, 1, N + 2 * m)) + 1j * rng.normal(size=(2, 3, 1, 1, N + 2 * m))
-    y = ops.tensor(ye)
-    for c in y:
-        dr.enable_grad(c)
-    yc = ext.crop(y, E)
-    np.testing.assert_allclose(ops.to_numpy(yc), ye @ S.T, atol=1e-5)
-    dr.backward(dr.sum(ops.abs2(yc), axis=None))
-    gy = np.asarray(dr.grad(y[0]), np.float64) + 1j * np.asarray(dr.grad(y[1]), np.float64)
-    np.testing.assert_allclose(gy, 2 * (ye @ S.T) @ S, atol=1e-4)
+    for E in (ext.matrix, None):
+        n = N if E is None else N + 2 * m
+        P = np.eye(N) if E is None else E
+        F = np.fft.fft(np.eye(n), axis=0, norm="ortho")
+        off = (n - N) // 2
+        crop = np.eye(n)[off:off + N]
+        H = [rng.normal(size=n) + 1j * rng.normal(size=n) for _ in range(3)]
+        first = (False, True, False)
+        z = ops.tensor(x)
+        hs = [ops.tensor(h.reshape(1, 1, 1, 1, n)) for h in H[:2]] + [H[2]]   # last: constant
+        for c in z + hs[0] + hs[1]:
+            dr.enable_grad(c)
+        with ops.single_thread():
+            out = ext.filter(z, E, hs, first=first)
+            W, loss, ref = [], 0.0, []
+            for k, (h, f) in enumerate(zip(H, first)):
+                A = (crop[:1] if f else crop) @ F.conj().T @ np.diag(h) @ F @ P
+                ref.append(A)
+                yk = x @ A.T
+                np.testing.assert_allclose(ops.to_numpy(out[k]), yk, atol=2e-5 * np.abs(yk).max())
+                W.append(rng.normal(size=yk.shape) + 1j * rng.normal(size=yk.shape))
+                wk = ops.tensor(W[-1])
+                loss = loss + dr.sum(out[k][0] * wk[0] + out[k][1] * wk[1], axis=None)
+            dr.backward(loss)                               # L = sum_k Re <W_k, y_k>
+        gx = np.asarray(dr.grad(z[0]), np.float64) + 1j * np.asarray(dr.grad(z[1]), np.float64)
+        np.testing.assert_allclose(gx, sum(w @ np.conj(A) for w, A in zip(W, ref)),
+                                   rtol=1e-4, atol=1e-4)
+        Xe = x @ (F @ P).T
+        for k in range(2):
+            sel = (crop[:1] if first[k] else crop) @ F.conj().T     # y_k = sel diag(H_k) Xe
+            gh = ((W[k] @ np.conj(sel)) * np.conj(Xe)).reshape(-1, n).sum(axis=0)
+            got = (np.asarray(dr.grad(hs[k][0]), np.float64)
+                   + 1j * np.asarray(dr.grad(hs[k][1]), np.float64)).ravel()
+            np.testing.assert_allclose(got, gh, rtol=1e-4, atol=1e-4 * np.abs(gh).max())
 
 
 # ============================================== IF filter: two stages, settling

@@ -20,6 +20,7 @@ import numbers
 import warnings
 
 import numpy as np
+import scipy.fft
 
 from ...errors import ConfigError
 from ...utils.threads import one_blas_thread
@@ -275,20 +276,44 @@ class RowExtension:
     def crop_numpy(self, y: np.ndarray, E) -> np.ndarray:
         return y if E is None else y[..., self.margin:self.margin + E.shape[1]]
 
-    # Dr.Jit versions (AD).  ``E`` is the identity on the window, so only its
-    # predicted rows cost a product: ``2 margin x N`` per row instead of
-    # ``(N + 2 margin) x N``, and the crop is a slice.
-    def extend(self, z, E):
-        if E is None:
-            return z
-        m = (E.shape[0] - E.shape[1]) // 2
-        return dr.custom(_RowExtend, z[0], z[1], head=E[:m], tail=E[E.shape[0] - m:])
+    def filter(self, x, E, responses, first=()):
+        """``crop(IDFT(H_k DFT(extend(x))))`` for every response ``H_k`` (AD node).
 
-    def crop(self, z, E):
-        if E is None:
-            return z
-        return dr.custom(_LastAxisSlice, z[0], z[1], start=(E.shape[0] - E.shape[1]) // 2,
-                         length=E.shape[1])
+        One DFT of the extended rows serves every response, and the crop, the
+        products and the inverse DFTs happen in one host call (its adjoint in
+        another): the steady-state filter outputs without a round trip to
+        the device per step.
+
+        Parameters
+        ----------
+        x : pair of tensors
+            complex ADC ``[..., N]``.
+        E : numpy.ndarray or None
+            :meth:`current`'s extension matrix (None: plain circular DFT).
+        responses : list
+            each ``n`` complex values (any shape, e.g. ``(1, 1, 1, 1, n)``),
+            ``n`` the extended length (``E.shape[0]`` or ``N``), shared by
+            every row; a Dr.Jit pair (AD) or a NumPy array (constant); on the
+            unitary DFT's bins, ``np.fft`` order.
+        first : sequence of bool
+            per response, return only the window's first sample ``[..., 1]``
+            (an inner product, no inverse DFT).
+
+        Returns a list of complex pairs, ``[..., N]`` or ``[..., 1]``.
+        """
+        first = tuple(bool(f) for f in first) or (False,) * len(responses)
+        if len(first) != len(responses):
+            raise ValueError("filter: one 'first' flag per response")
+        hs, needs = [], []
+        for h in responses:
+            h = h if isinstance(h, tuple) else ops.tensor(np.asarray(h, complex))
+            needs.append(dr.grad_enabled(h[0]) or dr.grad_enabled(h[1]))
+            hs.append(h if needs[-1] else (dr.detach(h[0]), dr.detach(h[1])))
+        m = 0 if E is None else (E.shape[0] - E.shape[1]) // 2
+        out = dr.custom(_FilteredRows, x[0], x[1], hs, head=None if E is None else E[:m],
+                        tail=None if E is None else E[E.shape[0] - m:], first=first,
+                        needs=tuple(needs))
+        return [(out[2 * k], out[2 * k + 1]) for k in range(len(hs))]
 
 
 _pair_numpy = ops._numpy_pair          # one home: complex128 from a float32 pair
@@ -304,60 +329,108 @@ def _rows_times(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     return out.reshape(x.shape[:-1] + (m.shape[1],))
 
 
-class _RowExtend(dr.CustomOp):
-    """``[x head^T, x, x tail^T]`` over the last axis (AD node): a row extension
-    whose matrix is the identity on the window (:meth:`RowExtension.extend`).
+def _column_support(M: np.ndarray):
+    """``(columns, M[:, columns])``: the slice spanning ``M``'s nonzero columns."""
+    nz = np.flatnonzero(np.any(M != 0, axis=0))
+    cols = slice(int(nz[0]), int(nz[-1]) + 1) if nz.size else slice(0, 0)
+    return cols, np.ascontiguousarray(M[:, cols])
 
-    ``head``, ``tail``: complex ``[m, N]``, the predicted samples before and
-    after the window.  Adjoint: ``G_window + G_head conj(head) + G_tail conj(tail)``.
+
+class _FilteredRows(dr.CustomOp):
+    """``y_k = C F^H diag(H_k) F P x`` for responses ``H_k`` (AD node,
+    :meth:`RowExtension.filter`): ``P`` the row extension ``[head; I; tail]``,
+    ``F`` the unitary DFT on the extended length ``n``, ``C`` the crop to the
+    window (or, with ``first[k]``, to its first sample: ``w^T diag(H_k) F P x``,
+    ``w_j = exp(2 pi i j m / n) / sqrt(n)``).
+
+    Adjoints (``G = dL/dRe + j dL/dIm``): the spectral gradient
+    ``S = sum_k conj(H_k) F C^T G_k`` gives ``G_x = P^H F^H S``, and
+    ``G_H_k = sum_rows conj(F P x) (F C^T G_k)``.
     """
 
-    def eval(self, re, im, head=None, tail=None):
-        self.head, self.tail = head, tail
-        return ops.tensor(self._apply(_pair_numpy(re, im)))
+    def eval(self, re, im, hs, head=None, tail=None, first=(), needs=()):
+        self.first, self.needs = first, needs
+        self.m = 0 if head is None else head.shape[0]
+        # a predictor of order p reads only the p samples next to its edge:
+        # the products use the matrices' nonzero columns alone
+        self.head = None if head is None else _column_support(head)
+        self.tail = None if tail is None else _column_support(tail)
+        x = _pair_numpy(re, im)
+        self.N = x.shape[-1]
+        self.Xe = scipy.fft.fft(self._extend(x), axis=-1, norm="ortho", overwrite_x=True)
+        n = self.Xe.shape[-1]
+        self.w = np.exp(2j * np.pi * np.arange(n) * self.m / n) / np.sqrt(n)
+        self.H = [_pair_numpy(h[0], h[1]).ravel() for h in hs]
+        self.h_shapes = [tuple(h[0].shape) for h in hs]
+        outs = []
+        for H, f in zip(self.H, first):
+            y = self._one(self.Xe, H, f)
+            outs += [mi.TensorXf(np.ascontiguousarray(y.real, np.float32)),
+                     mi.TensorXf(np.ascontiguousarray(y.imag, np.float32))]
+        return tuple(outs)
 
-    def _apply(self, x):
-        return np.concatenate([_rows_times(x, self.head.T), x, _rows_times(x, self.tail.T)],
+    def _extend(self, x):
+        if self.head is None:
+            return x
+        (hs, h), (ts, t) = self.head, self.tail
+        return np.concatenate([_rows_times(x[..., hs], h.T), x, _rows_times(x[..., ts], t.T)],
                               axis=-1)
 
+    def _one(self, X, H, first):
+        if first:
+            return _rows_times(X, (H * self.w)[:, None])
+        y = scipy.fft.ifft(X * H, axis=-1, norm="ortho", overwrite_x=True)
+        return y[..., self.m:self.m + self.N]
+
+    def _spectrum(self, g, first):
+        """``F C^T g`` (or ``conj(w) g`` for a first-sample output)."""
+        if first:
+            return np.conj(self.w) * g
+        pad = np.zeros(g.shape[:-1] + (self.Xe.shape[-1],), complex)
+        pad[..., self.m:self.m + self.N] = g
+        return scipy.fft.fft(pad, axis=-1, norm="ortho", overwrite_x=True)
+
     def forward(self):
-        self.set_grad_out(ops.tensor(self._apply(_pair_numpy(self.grad_in("re"),
-                                                             self.grad_in("im")))))
+        dX = scipy.fft.fft(self._extend(_pair_numpy(self.grad_in("re"), self.grad_in("im"))),
+                           axis=-1, norm="ortho")
+        dh = self.grad_in("hs")
+        outs = []
+        for k, (H, f) in enumerate(zip(self.H, self.first)):
+            dY = dX * H
+            if self.needs[k]:
+                dY = dY + self.Xe * _pair_numpy(dh[k][0], dh[k][1]).ravel()
+            y = self._one(dY, np.ones_like(H), f)
+            outs += [mi.TensorXf(np.ascontiguousarray(y.real, np.float32)),
+                     mi.TensorXf(np.ascontiguousarray(y.imag, np.float32))]
+        self.set_grad_out(tuple(outs))
 
     def backward(self):
-        g = _pair_numpy(*self.grad_out())
-        m, n = self.head.shape
-        gx = (g[..., m:m + n] + _rows_times(g[..., :m], np.conj(self.head))
-              + _rows_times(g[..., m + n:], np.conj(self.tail)))
+        g = self.grad_out()
+        S_x = None
+        gh = []
+        for k, (H, f) in enumerate(zip(self.H, self.first)):
+            S = self._spectrum(_pair_numpy(g[2 * k], g[2 * k + 1]), f)
+            part = np.conj(H) * S
+            S_x = part if S_x is None else S_x + part
+            if self.needs[k]:
+                G = np.sum((np.conj(self.Xe) * S).reshape(-1, S.shape[-1]), axis=0)
+            else:
+                G = np.zeros(H.shape, complex)
+            gh.append(ops.tensor(G.reshape(self.h_shapes[k])))
+        G_e = scipy.fft.ifft(S_x, axis=-1, norm="ortho", overwrite_x=True)
+        m, N = self.m, self.N
+        gx = np.array(G_e[..., m:m + N])
+        if self.head is not None:
+            (hs, h), (ts, t) = self.head, self.tail
+            gx[..., hs] += _rows_times(G_e[..., :m], np.conj(h))
+            gx[..., ts] += _rows_times(G_e[..., m + N:], np.conj(t))
         gx = ops.tensor(gx)
         self.set_grad_in("re", gx[0])
         self.set_grad_in("im", gx[1])
+        self.set_grad_in("hs", gh)
 
     def name(self):
-        return "RowExtend"
-
-
-class _LastAxisSlice(dr.CustomOp):
-    """``x[..., start:start + length]`` (AD node; the adjoint pads with zeros)."""
-
-    def eval(self, re, im, start=0, length=1):
-        self.start, self.length, self.full = int(start), int(length), int(re.shape[-1])
-        return ops.tensor(_pair_numpy(re, im)[..., self.start:self.start + self.length])
-
-    def forward(self):
-        dx = _pair_numpy(self.grad_in("re"), self.grad_in("im"))
-        self.set_grad_out(ops.tensor(dx[..., self.start:self.start + self.length]))
-
-    def backward(self):
-        g = _pair_numpy(*self.grad_out())
-        gx = np.zeros(g.shape[:-1] + (self.full,), complex)
-        gx[..., self.start:self.start + self.length] = g
-        gx = ops.tensor(gx)
-        self.set_grad_in("re", gx[0])
-        self.set_grad_in("im", gx[1])
-
-    def name(self):
-        return "LastAxisSlice"
+        return "FilteredRows"
 
 
 def seen_chirp_mean(x: np.ndarray) -> np.ndarray:

@@ -127,12 +127,11 @@ class ChirpNonlinearity(Effect):
             phi = phi + scalar(p["c"], d) * last_axis(W[d])               # [1, 1, 1, 1, N] rad
         ext = self.extension
         E = ext.current(lambda: ops.to_numpy(x), ctx.radar.num_samples)
-        X = ops.dft(ext.extend(x, E))
-        nu = self._nu(ctx, int(X[0].shape[-1]))
+        nu = self._nu(ctx, ctx.radar.num_samples if E is None else E.shape[0])
+        derivs = ext.filter(x, E, [nu ** m for m in range(1, self.taylor_order + 1)])
         out, power = x, 1.0
-        for m in range(1, self.taylor_order + 1):
+        for m, dm in enumerate(derivs, start=1):        # d^m x / (j 2 pi f_s)^m
             power = power * phi
-            dm = ext.crop(ops.idft(ops.scale(X, last_axis(nu ** m))), E)  # d^m x / (j 2 pi f_s)^m
             out = ops.cadd(out, ops.scale(_times_j_power(dm, m), power / math.factorial(m)))
         return out
 

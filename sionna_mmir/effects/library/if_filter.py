@@ -93,7 +93,7 @@ import numpy as np
 from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
-from ._sensor_common import (LN10, RowExtension, _LastAxisSlice, band_frequencies, check_float,
+from ._sensor_common import (LN10, RowExtension, band_frequencies, check_float,
                              check_int, chirp_deviation, last_axis, scalar, seen_chirp_mean)
 
 dr = ops.dr
@@ -448,15 +448,24 @@ class IFFilter(Effect):
         ext = self.extension
         N = ctx.radar.num_samples
         E = ext.current(lambda: ops.to_numpy(x), N)
-        Xe = ops.dft(ext.extend(x, E))
-        n = int(Xe[0].shape[-1])
-        y = ext.crop(ops.idft(ops.cmul(Xe, self.response(p, ctx, n))), E)
+        n = N if E is None else E.shape[0]
+        H = self.response(p, ctx, n)
         if not (self.transient and "settled" in p):
-            return y
-        return self._transient(x, Xe, y, p, ctx, E)
+            return ext.filter(x, E, [H])[0]
+        corners = self._highpass_corners(p)
+        if len(corners) == 1:
+            y = ext.filter(x, E, [H])[0]
+            return self._transient(x, y, None, p, ctx)
+        bin_hz = ctx.radar.sample_rate / n
+        nu = band_frequencies(ctx, self.band_start, n) / bin_hz
+        a1 = dr.exp(LN10 * corners[0]) * (KHZ / bin_hz)
+        H1 = _highpass_bin_average(a1, last_axis(nu + 0.5), last_axis(nu - 0.5))
+        y, z0 = ext.filter(x, E, [H, H1], first=(False, True))
+        return self._transient(x, y, z0, p, ctx)
 
-    def _transient(self, x, Xe, y, p, ctx, E):
-        """``y`` plus the unsettled high-pass's free decay (module docstring; AD)."""
+    def _transient(self, x, y, z0, p, ctx):
+        """``y`` plus the unsettled high-pass's free decay (module docstring; AD);
+        ``z0``: the first window sample after the first stage alone (two stages)."""
         r = ctx.radar
         t = last_axis(np.arange(r.num_samples) / r.sample_rate)
         unseen = 1.0 - scalar(p["settled"], 0)
@@ -464,14 +473,8 @@ class IFFilter(Effect):
         w1 = dr.exp(LN10 * corners[0]) * (2 * np.pi * KHZ)
         u0, y0 = first_sample(x), first_sample(y)
         d1 = dr.exp(-w1 * t)
-        if len(corners) == 1:
+        if z0 is None:
             return ops.cadd(y, _scaled(_minus(u0, y0), unseen, d1))
-        n = int(Xe[0].shape[-1])
-        bin_hz = r.sample_rate / n
-        nu = band_frequencies(ctx, self.band_start, n) / bin_hz
-        a1 = dr.exp(LN10 * corners[0]) * (KHZ / bin_hz)
-        H1 = _highpass_bin_average(a1, last_axis(nu + 0.5), last_axis(nu - 0.5))
-        z0 = first_sample(self.extension.crop(ops.idft(ops.cmul(Xe, H1)), E))
         w2 = dr.exp(LN10 * corners[1]) * (2 * np.pi * KHZ)
         lo, hi = dr.minimum(w1, w2), dr.maximum(w1, w2)        # symmetric in the poles
         xw = (hi - lo) * t                                      # >= 0: no overflow
@@ -510,7 +513,7 @@ def _minus(a, b):
 
 def first_sample(z):
     """``z[..., :1]`` of a complex pair (AD)."""
-    return dr.custom(_LastAxisSlice, z[0], z[1], start=0, length=1)
+    return (z[0][..., 0:1], z[1][..., 0:1])
 
 
 class _Start(typing.NamedTuple):
