@@ -92,26 +92,36 @@ def _folds(shape, k, seed, groups):
     return trains, "cell"
 
 
-def _fold_base_task(shared, k: int, maxiter: int) -> dict:
-    """Worker task: the nuisance values of ``model`` refitted on fold ``k``'s training cells."""
-    model, folds = shared
+def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple:
+    """Worker task: group ``g``'s model with its nuisance values refitted on
+    fold ``k``'s training cells, and the base scores of the held-out cells
+    that the group's candidates are compared with: ``(nuisance values,
+    {"nll", "dev", "slots", "energy"})`` (``needs`` names the optional ones)."""
+    model, folds = shared[g]
     base = model.copy()
     base.fit(trainable=[], cells=folds[k], maxiter=maxiter)
-    return base.nuisance.values
+    test = ~folds[k]
+    n_test = float(test.sum()) * model.ctx.shape[-1]
+    out = {"nll": base.nll_profiled(test) * n_test}
+    if "dev" in needs:
+        out["dev"] = base.nll_profiled(test, deviation=True) * n_test
+    if "slots" in needs:
+        out["slots"] = base.nll_profiled(test, True, by_slot=True)[1]
+    if "energy" in needs:
+        out["energy"] = base.residual_energy(test)
+    return base.nuisance.values, out
 
 
-def _fold_bases(model: EffectModel, folds, maxiter, pool=SERIAL) -> list:
-    """Per fold: the current model refitted (nuisance only) on the training cells,
-    with its held-out NLL total and the number of held-out samples."""
-    out = []
-    fitted = pool.map(_fold_base_task, (model, folds), [(k, maxiter) for k in range(len(folds))])
-    for train, values in zip(folds, fitted):
-        test = ~train
-        n_test = float(test.sum()) * model.ctx.shape[-1]
-        base = model.copy()
-        base.nuisance.values = values
-        out.append((train, base, base.nll_profiled(test) * n_test, n_test))
-    return out
+def _base_needs(model, candidates) -> tuple:
+    """What :func:`_fold_base_task` must score for ``candidates``."""
+    needs = []
+    if any(e.kind == "variance" and model.ctx.shape[3] > 1 for e in candidates):
+        needs.append("dev")
+    if any(e.kind == "variance" for e in candidates):
+        needs.append("slots")
+    if any(e.kind != "variance" for e in candidates):
+        needs.append("energy")
+    return tuple(needs)
 
 
 def slot_share(gains: list, tests: list) -> float:
@@ -191,15 +201,16 @@ def penalty_per_param(penalty, n_samples: float) -> float:
     return float(penalty)
 
 
-def _candidate_task(shared, k: int, eff, maxiter: int, deviation: bool) -> dict:
-    """Worker task: candidate ``eff`` added to fold ``k``'s base, fitted on its
-    training cells, and what the ranking needs from its held-out cells."""
-    train, base = shared[k]
+def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) -> dict:
+    """Worker task: candidate ``eff`` added to group ``g``'s fold ``k`` base,
+    fitted on its training cells, and what the ranking needs from its
+    held-out cells."""
+    train, base = shared[g][k]
     cand = base.copy()
     cand.add(copy.deepcopy(eff), cells=train)          # fresh state per fold
     _fit_candidate(cand, eff, train, maxiter)
     out = {"nll": cand.nll_profiled(~train, deviation=deviation),
-           "n_params": int(cand.components[-1].n_params)}
+           "n_params": int(cand.components[-1].n_params), "dev": deviation}
     if eff.kind == "variance":
         out["slots"] = cand.nll_profiled(~train, True, by_slot=True)[1]
     else:
@@ -214,46 +225,74 @@ def rank_candidates(model: EffectModel, candidates, folds, penalty=BIC,
     The (candidate, fold) fits are independent and run on ``pool``
     (:class:`~.workers.FitPool`); ``progress(name)`` follows each candidate
     whose folds are all fitted."""
-    bases = _fold_bases(model, folds, maxiter, pool)
-    K = len(bases)
-    devs = [eff.kind == "variance" and model.ctx.shape[3] > 1 for eff in candidates]
-    tasks = [(k, eff, maxiter, dev) for eff, dev in zip(candidates, devs) for k in range(K)]
-    left = {i: K for i in range(len(candidates))}
+    return rank_groups([(model, candidates, folds)], penalty, maxiter, progress, pool)[0]
+
+
+def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SERIAL) -> list:
+    """:func:`rank_candidates` for several ``(model, candidates, folds)``
+    groups at once (the data tiers of a round), one list per group.
+
+    The fold bases of every group are fitted in one call on ``pool``, then
+    every (candidate, fold) fit in another, the last group's first: the
+    groups' fits share the worker processes instead of waiting for each
+    other, and the longest (full-data) fits start first."""
+    groups = [(m, list(c), f) for m, c, f in groups]
+    base_tasks = [(g, k, maxiter, _base_needs(m, c))
+                  for g, (m, c, f) in enumerate(groups) for k in range(len(f))]
+    fitted = iter(pool.map(_fold_base_task, [(m, f) for m, _, f in groups], base_tasks))
+    bases = []                 # per group, per fold: (train, base model, base scores, n_test)
+    for m, _, folds in groups:
+        per = []
+        for train in folds:
+            values, scores = next(fitted)
+            base = m.copy()
+            base.nuisance.values = values
+            per.append((train, base, scores, float((~train).sum()) * m.ctx.shape[-1]))
+        bases.append(per)
+    tasks, left = [], {}
+    for g in reversed(range(len(groups))):
+        m, cands, folds = groups[g]
+        for i, eff in enumerate(cands):
+            left[(g, i)] = len(folds)
+            dev = eff.kind == "variance" and m.ctx.shape[3] > 1
+            tasks += [(g, k, eff, maxiter, dev, (g, i)) for k in range(len(folds))]
 
     def done(t):
-        i = t // K
-        left[i] -= 1
-        if left[i] == 0 and progress is not None:
-            progress(candidates[i].name)
+        key = tasks[t][-1]
+        left[key] -= 1
+        if left[key] == 0 and progress is not None:
+            progress(groups[key[0]][1][key[1]].name)
 
-    fits = pool.map(_candidate_task, [(b[0], b[1]) for b in bases], tasks, done=done)
-    base_dev, base_energy, base_slots = {}, {}, {}      # per fold, computed once
+    fits = pool.map(_candidate_task, [[(b[0], b[1]) for b in per] for per in bases],
+                    [t[:-1] for t in tasks], done=done)
+    by_key = {}
+    for t, fit in zip(tasks, fits):
+        by_key[(t[0], t[1], t[2].name)] = fit
+    return [_scores(g, cands, bases[g], by_key, penalty)
+            for g, (_, cands, _) in enumerate(groups)]
+
+
+def _scores(g, candidates, bases, fits, penalty) -> list:
+    """The :class:`CandidateScore` of every candidate of group ``g``, best first."""
     out = []
-    for i, (eff, dev) in enumerate(zip(candidates, devs)):
+    for eff in candidates:
         gains, n_tot, cell_gains, energy = [], 0.0, [], [0.0, 0.0]
-        for k, (train, base, nll0, n_test) in enumerate(bases):
-            fit = fits[i * K + k]
-            if dev:
-                if k not in base_dev:
-                    base_dev[k] = base.nll_profiled(~train, deviation=True) * n_test
-                nll0 = base_dev[k]
+        for k, (train, _, base, n_test) in enumerate(bases):
+            fit = fits[(g, k, eff.name)]
+            nll0 = base["dev"] if fit["dev"] else base["nll"]
             gains.append(nll0 - fit["nll"] * n_test)
             if eff.kind == "variance":
-                if k not in base_slots:
-                    base_slots[k] = base.nll_profiled(~train, True, by_slot=True)[1]
-                cell_gains.append(base_slots[k] - fit["slots"])
+                cell_gains.append(base["slots"] - fit["slots"])
             else:
-                if k not in base_energy:
-                    base_energy[k] = base.residual_energy(~train)
-                energy[0] += base_energy[k]
+                energy[0] += base["energy"]
                 energy[1] += fit["energy"]
             n_tot += n_test
-        n_params = fits[i * K]["n_params"]
+        n_params = fits[(g, 0, eff.name)]["n_params"]
         gain = float(np.sum(gains))
         out.append(CandidateScore(name=eff.name, n_params=n_params, gain=gain,
                                   gain_per_sample=gain / max(n_tot, 1.0),
                                   score=gain - penalty_per_param(penalty, n_tot) * n_params,
-                                  fold_gains=[float(g) for g in gains],
+                                  fold_gains=[float(x) for x in gains],
                                   slot_share=(slot_share(cell_gains, [~b[0] for b in bases])
                                               if cell_gains else 1.0),
                                   energy_change_db=(_db(energy[1] / energy[0])
@@ -285,13 +324,9 @@ class _Tiers:
         todo = [c for c in candidates if c.name not in self.scores]
         fast = [c for c in todo if _averaged_scoring(c)]
         slow = [c for c in todo if not _averaged_scoring(c)]
-        if fast:
-            out = rank_candidates(self.avg, fast, self.avg_folds, penalty, maxiter, progress,
-                                  self.pool)
-            self.scores.update((c.name, c) for c in out)
-        if slow:
-            out = rank_candidates(self.model, slow, self.folds, penalty, maxiter, progress,
-                                  self.pool)
+        groups = [(m, cands, f) for m, cands, f in ((self.avg, fast, self.avg_folds),
+                                                    (self.model, slow, self.folds)) if cands]
+        for out in rank_groups(groups, penalty, maxiter, progress, self.pool):
             self.scores.update((c.name, c) for c in out)
         return sorted((self.scores[c.name] for c in candidates), key=lambda c: c.score,
                       reverse=True)
