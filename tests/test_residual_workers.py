@@ -202,7 +202,10 @@ def test_05_diagnosis_on_two_processes_is_the_diagnosis_on_one():
     two = diagnose(EffectModel(ctx, meas, clean), cands, max_rounds=2, workers=2)
     assert one.adopted == two.adopted == ["channel_gain", "missing_scatterer"]
     for a, b in zip(one.adoptions, two.adoptions):
-        assert [c.to_dict() for c in a.candidates] == [c.to_dict() for c in b.candidates]
+        def scores(cands):                                   # all but the fits' seconds
+            return [{k: v for k, v in c.to_dict().items() if k != "fit_s"} for c in cands]
+
+        assert scores(a.candidates) == scores(b.candidates)
         assert a.after == b.after
     assert one.final == two.final
 

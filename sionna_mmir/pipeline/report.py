@@ -13,9 +13,10 @@
 ``adoptions``
     per adopted effect: ``name``, ``side`` (scene / sensor), ``verdict``,
     ``before``, ``after``, ``unexplained`` (the residual's excess over the
-    noise floor after it), its parameters and the ranking that chose it
-    (per candidate: held-out gain, score and ``energy_change_db``, the
-    held-out residual energy change)
+    noise floor after it), its parameters, the round's wall ``seconds``
+    (``rank``, ``adopt``) and the ranking that chose it (per candidate:
+    held-out gain, score, ``energy_change_db``, the held-out residual energy
+    change, and ``fit_s``, the seconds of its fold fits)
 ``unexplained``
     where the final residual exceeds the noise floor (range / beat
     frequency, channels, chirps, samples)
@@ -70,7 +71,7 @@ def loop_document(loop) -> dict:
         adoptions.append({"name": a.name, "side": side, "verdict": _verdict(a, side),
                           "before": a.before, "after": a.after,
                           "unexplained": localise(model.ctx, a.residual_after),
-                          "params": a.params,
+                          "params": a.params, "seconds": a.seconds,
                           "candidates": [c.to_dict() for c in a.candidates]})
     mismatch = {"base_refinement": loop.scene_mismatch or {},
                 "final": loop.model.scene_mismatch(),

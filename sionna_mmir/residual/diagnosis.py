@@ -61,6 +61,7 @@ what stays unexplained.
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 
@@ -85,6 +86,8 @@ class Adoption:
     params: dict
     residual_before: np.ndarray = None
     residual_after: np.ndarray = None
+    #: wall seconds of the round: ``{"rank": ..., "adopt": ...}``
+    seconds: dict = None
 
 
 @dataclasses.dataclass
@@ -178,23 +181,29 @@ class DiagnosisRun:
         tiers = _Tiers(self.model, self.folds, self.seed, self.groups, self.fits)
         scored = None if self.progress is None else (lambda n: self.progress("scored", n))
         vetoed = set()
+        secs = {"rank": 0.0, "adopt": 0.0}
         while True:
+            t0 = time.perf_counter()
             ranking, best = _rank_round(tiers, self.pool, self.penalty, self.maxiter, scored,
                                         self.min_gain, self.screened, vetoed)
+            secs["rank"] += time.perf_counter() - t0
             self.ranking = ranking
             if best is None:
                 self.stop_reason = _stop_reason(vetoed)
                 return None
             eff = next(c for c in self.pool if c.name == best.name)
             before, res_before = self.current, self.model.residual()
+            t0 = time.perf_counter()
             comp = self._adopt_or_undo(eff)
+            secs["adopt"] += time.perf_counter() - t0
             if comp is not None:
                 break
             vetoed.add(eff.name)
         a = Adoption(name=eff.name, round=len(self.adoptions), candidates=ranking, before=before,
                      after=self.current, params=comp.effect.summary(comp.values, self.model.ctx),
                      residual_before=res_before.astype(np.complex64),
-                     residual_after=self.model.residual().astype(np.complex64))
+                     residual_after=self.model.residual().astype(np.complex64),
+                     seconds={k: round(v, 2) for k, v in secs.items()})
         self.adoptions.append(a)
         if not getattr(eff, "repeatable", False):
             self.pool = [c for c in self.pool if c is not eff]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import time
 
 import numpy as np
 
@@ -38,6 +39,8 @@ class CandidateScore:
     #: candidates; 0 for variance effects, which do not predict the mean); a
     #: mean-only candidate (:func:`_mean_only`) is acceptable only when it is <= 0
     energy_change_db: float = 0.0
+    #: seconds its fold fits took (summed over folds, each timed where it ran)
+    fit_s: float = 0.0
 
     def to_dict(self) -> dict:
         return {k: (round(v, 6) if isinstance(v, float) else v)
@@ -205,6 +208,7 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
     """Worker task: candidate ``eff`` added to group ``g``'s fold ``k`` base,
     fitted on its training cells, and what the ranking needs from its
     held-out cells."""
+    t0 = time.perf_counter()
     train, base = shared[g][k]
     cand = base.copy()
     cand.add(copy.deepcopy(eff), cells=train)          # fresh state per fold
@@ -215,6 +219,7 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
         out["slots"] = cand.nll_profiled(~train, True, by_slot=True)[1]
     else:
         out["energy"] = cand.residual_energy(~train)
+    out["s"] = time.perf_counter() - t0
     return out
 
 
@@ -276,9 +281,10 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
     """The :class:`CandidateScore` of every candidate of group ``g``, best first."""
     out = []
     for eff in candidates:
-        gains, n_tot, cell_gains, energy = [], 0.0, [], [0.0, 0.0]
+        gains, n_tot, cell_gains, energy, secs = [], 0.0, [], [0.0, 0.0], 0.0
         for k, (train, _, base, n_test) in enumerate(bases):
             fit = fits[(g, k, eff.name)]
+            secs += fit["s"]
             nll0 = base["dev"] if fit["dev"] else base["nll"]
             gains.append(nll0 - fit["nll"] * n_test)
             if eff.kind == "variance":
@@ -296,7 +302,8 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
                                   slot_share=(slot_share(cell_gains, [~b[0] for b in bases])
                                               if cell_gains else 1.0),
                                   energy_change_db=(_db(energy[1] / energy[0])
-                                                    if energy[0] > 0 else 0.0)))
+                                                    if energy[0] > 0 else 0.0),
+                                  fit_s=secs))
     return sorted(out, key=lambda c: c.score, reverse=True)
 
 
