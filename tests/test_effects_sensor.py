@@ -772,8 +772,8 @@ def test_29_if_filter_leaves_a_white_floor_white():
 
 
 def test_30_filtered_rows_match_dense_matrices_and_their_adjoints():
-    # reference: y_k = S F^H diag(H_k) F E x written out as dense NumPy
-    # matrices (E the extension, F the unitary DFT, S the crop or the
+    # reference: y_k = ((x (F P)^T) * H_k) M_k^T with dense NumPy matrices (P the
+    # extension, F the unitary DFT, M_k = S F^H with S the crop or the
     # first-sample selection); the adjoints in x and H_k are the transposed
     # products of that same chain, not the operator's own backward
     from sionna_mmir.effects.library._sensor_common import RowExtension
@@ -786,37 +786,39 @@ def test_30_filtered_rows_match_dense_matrices_and_their_adjoints():
     ext = RowExtension(m, 6).fit(x)
     for E in (ext.matrix, None):
         n = N if E is None else N + 2 * m
-        P = np.eye(N) if E is None else E
-        F = np.fft.fft(np.eye(n), axis=0, norm="ortho")
+        FP = np.fft.fft(np.eye(n), axis=0, norm="ortho") @ (np.eye(N) if E is None else E)
         off = (n - N) // 2
         crop = np.eye(n)[off:off + N]
-        H = [rng.normal(size=n) + 1j * rng.normal(size=n) for _ in range(3)]
-        first = (False, True, False)
+        shapes = [(1, 1, 1, n), (1, 1, 1, n), (n,), (2, 1, 1, n)]   # the last: one per row pair
+        H = [rng.normal(size=sh) + 1j * rng.normal(size=sh) for sh in shapes]
+        first = (False, True, False, False)
+        ad = (True, True, False, True)                              # the third: a constant
         z = ops.tensor(x)
-        hs = [ops.tensor(h.reshape(1, 1, 1, 1, n)) for h in H[:2]] + [H[2]]   # last: constant
-        for c in z + hs[0] + hs[1]:
+        hs = [ops.tensor(h) if g else h for h, g in zip(H, ad)]
+        for c in z + sum((h for h, g in zip(hs, ad) if g), ()):
             dr.enable_grad(c)
+        Xe = x @ FP.T
         with ops.single_thread():
             out = ext.filter(z, E, hs, first=first)
-            W, loss, ref = [], 0.0, []
+            W, M, loss = [], [], 0.0
             for k, (h, f) in enumerate(zip(H, first)):
-                A = (crop[:1] if f else crop) @ F.conj().T @ np.diag(h) @ F @ P
-                ref.append(A)
-                yk = x @ A.T
+                M.append((crop[:1] if f else crop) @ np.fft.ifft(np.eye(n), axis=0, norm="ortho"))
+                yk = (Xe * h) @ M[k].T
                 np.testing.assert_allclose(ops.to_numpy(out[k]), yk, atol=2e-5 * np.abs(yk).max())
                 W.append(rng.normal(size=yk.shape) + 1j * rng.normal(size=yk.shape))
                 wk = ops.tensor(W[-1])
                 loss = loss + dr.sum(out[k][0] * wk[0] + out[k][1] * wk[1], axis=None)
             dr.backward(loss)                               # L = sum_k Re <W_k, y_k>
+        back = [W[k] @ np.conj(M[k]) for k in range(len(H))]          # dL / dY_k
         gx = np.asarray(dr.grad(z[0]), np.float64) + 1j * np.asarray(dr.grad(z[1]), np.float64)
-        np.testing.assert_allclose(gx, sum(w @ np.conj(A) for w, A in zip(W, ref)),
+        np.testing.assert_allclose(gx, sum(b * np.conj(h) for b, h in zip(back, H)) @ np.conj(FP),
                                    rtol=1e-4, atol=1e-4)
-        Xe = x @ (F @ P).T
-        for k in range(2):
-            sel = (crop[:1] if first[k] else crop) @ F.conj().T     # y_k = sel diag(H_k) Xe
-            gh = ((W[k] @ np.conj(sel)) * np.conj(Xe)).reshape(-1, n).sum(axis=0)
+        for k in (0, 1, 3):
+            full = back[k] * np.conj(Xe)
+            gh = full.sum(axis=(0, 1, 2), keepdims=True) if H[k].shape[0] == 1 \
+                else full.sum(axis=(1, 2), keepdims=True)
             got = (np.asarray(dr.grad(hs[k][0]), np.float64)
-                   + 1j * np.asarray(dr.grad(hs[k][1]), np.float64)).ravel()
+                   + 1j * np.asarray(dr.grad(hs[k][1]), np.float64))
             np.testing.assert_allclose(got, gh, rtol=1e-4, atol=1e-4 * np.abs(gh).max())
 
 

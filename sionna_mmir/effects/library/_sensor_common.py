@@ -277,49 +277,52 @@ class RowExtension:
         return y if E is None else y[..., self.margin:self.margin + E.shape[1]]
 
     def filter(self, x, E, responses, first=()):
-        """``crop(IDFT(H_k DFT(extend(x))))`` for every response ``H_k`` (AD node).
+        """:func:`filter_rows` with this extension's matrix ``E`` (:meth:`current`)."""
+        return filter_rows(x, E, responses, first)
 
-        One DFT of the extended rows serves every response, and the crop, the
-        products and the inverse DFTs happen in one host call (its adjoint in
-        another): the steady-state filter outputs without a round trip to
-        the device per step.
 
-        Parameters
-        ----------
-        x : pair of tensors
-            complex ADC ``[..., N]``.
-        E : numpy.ndarray or None
-            :meth:`current`'s extension matrix (None: plain circular DFT).
-        responses : list
-            each ``n`` complex values (any shape, e.g. ``(1, 1, 1, 1, n)``),
-            ``n`` the extended length (``E.shape[0]`` or ``N``), shared by
-            every row; a Dr.Jit pair (AD) or a NumPy array (constant); on the
-            unitary DFT's bins, ``np.fft`` order.
-        first : sequence of bool
-            per response, return only the window's first sample ``[..., 1]``
-            (an inner product, no inverse DFT).
+def filter_rows(x, E, responses, first=()):
+    """``crop(IDFT(H_k DFT(extend(x))))`` for every response ``H_k`` (AD node).
 
-        Returns a list of complex pairs, ``[..., N]`` or ``[..., 1]``.
-        """
-        first = tuple(bool(f) for f in first) or (False,) * len(responses)
-        if len(first) != len(responses):
-            raise ValueError("filter: one 'first' flag per response")
-        hs, needs = [], []
-        for h in responses:
-            h = h if isinstance(h, tuple) else ops.tensor(np.asarray(h, complex))
-            needs.append(dr.grad_enabled(h[0]) or dr.grad_enabled(h[1]))
-            hs.append(h if needs[-1] else (dr.detach(h[0]), dr.detach(h[1])))
-        m = 0 if E is None else (E.shape[0] - E.shape[1]) // 2
-        out = dr.custom(_FilteredRows, x[0], x[1], hs, head=None if E is None else E[:m],
-                        tail=None if E is None else E[E.shape[0] - m:], first=first,
-                        needs=tuple(needs))
-        return [(out[2 * k], out[2 * k + 1]) for k in range(len(hs))]
+    One DFT of the extended rows serves every response, and the crop, the
+    products and the inverse DFTs happen in one host call (its adjoint in
+    another): the steady-state filter outputs without a round trip to
+    the device per step.
+
+    Parameters
+    ----------
+    x : pair of tensors
+        complex ADC ``[..., N]``.
+    E : numpy.ndarray or None
+        :meth:`RowExtension.current`'s extension matrix (None: plain
+        circular DFT).
+    responses : list
+        each complex, broadcastable to ``[..., n]`` (``n`` the extended
+        length, ``E.shape[0]`` or ``N``; e.g. ``(1, 1, 1, 1, n)`` for one
+        response of every row); a Dr.Jit pair (AD) or a NumPy array
+        (constant); on the unitary DFT's bins, ``np.fft`` order.
+    first : sequence of bool
+        per response, return only the window's first sample ``[..., 1]``
+        (an inner product, no inverse DFT).
+
+    Returns a list of complex pairs, ``[..., N]`` or ``[..., 1]``.
+    """
+    first = tuple(bool(f) for f in first) or (False,) * len(responses)
+    if len(first) != len(responses):
+        raise ValueError("filter_rows: one 'first' flag per response")
+    hs, needs = [], []
+    for h in responses:
+        h = h if isinstance(h, tuple) else ops.tensor(np.asarray(h, complex))
+        needs.append(dr.grad_enabled(h[0]) or dr.grad_enabled(h[1]))
+        hs.append(h if needs[-1] else (dr.detach(h[0]), dr.detach(h[1])))
+    m = 0 if E is None else (E.shape[0] - E.shape[1]) // 2
+    out = dr.custom(_FilteredRows, x[0], x[1], hs, head=None if E is None else E[:m],
+                    tail=None if E is None else E[E.shape[0] - m:], first=first,
+                    needs=tuple(needs))
+    return [(out[2 * k], out[2 * k + 1]) for k in range(len(hs))]
 
 
 _pair_numpy = ops._numpy_pair          # one home: complex128 from a float32 pair
-
-
-
 
 
 def _rows_times(x: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -327,6 +330,14 @@ def _rows_times(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     with one_blas_thread():
         out = x.reshape(-1, x.shape[-1]) @ m
     return out.reshape(x.shape[:-1] + (m.shape[1],))
+
+
+def _sum_to(a: np.ndarray, shape: tuple) -> np.ndarray:
+    """``a`` summed over the axes that ``shape`` broadcasts (the adjoint of broadcasting)."""
+    lead = a.ndim - len(shape)
+    axes = tuple(range(lead)) + tuple(lead + i for i, d in enumerate(shape)
+                                      if d == 1 and a.shape[lead + i] != 1)
+    return np.sum(a, axis=axes, keepdims=True).reshape(shape)
 
 
 def _column_support(M: np.ndarray):
@@ -338,14 +349,14 @@ def _column_support(M: np.ndarray):
 
 class _FilteredRows(dr.CustomOp):
     """``y_k = C F^H diag(H_k) F P x`` for responses ``H_k`` (AD node,
-    :meth:`RowExtension.filter`): ``P`` the row extension ``[head; I; tail]``,
+    :func:`filter_rows`): ``P`` the row extension ``[head; I; tail]``,
     ``F`` the unitary DFT on the extended length ``n``, ``C`` the crop to the
     window (or, with ``first[k]``, to its first sample: ``w^T diag(H_k) F P x``,
     ``w_j = exp(2 pi i j m / n) / sqrt(n)``).
 
     Adjoints (``G = dL/dRe + j dL/dIm``): the spectral gradient
     ``S = sum_k conj(H_k) F C^T G_k`` gives ``G_x = P^H F^H S``, and
-    ``G_H_k = sum_rows conj(F P x) (F C^T G_k)``.
+    ``G_H_k = sum conj(F P x) (F C^T G_k)`` over the axes ``H_k`` broadcasts.
     """
 
     def eval(self, re, im, hs, head=None, tail=None, first=(), needs=()):
@@ -360,8 +371,8 @@ class _FilteredRows(dr.CustomOp):
         self.Xe = scipy.fft.fft(self._extend(x), axis=-1, norm="ortho", overwrite_x=True)
         n = self.Xe.shape[-1]
         self.w = np.exp(2j * np.pi * np.arange(n) * self.m / n) / np.sqrt(n)
-        self.H = [_pair_numpy(h[0], h[1]).ravel() for h in hs]
         self.h_shapes = [tuple(h[0].shape) for h in hs]
+        self.H = [self._response(h) for h in hs]
         outs = []
         for H, f in zip(self.H, first):
             y = self._one(self.Xe, H, f)
@@ -376,9 +387,17 @@ class _FilteredRows(dr.CustomOp):
         return np.concatenate([_rows_times(x[..., hs], h.T), x, _rows_times(x[..., ts], t.T)],
                               axis=-1)
 
+    @staticmethod
+    def _response(h):
+        """A response as complex NumPy: flat ``[n]`` when every row shares it."""
+        H = _pair_numpy(h[0], h[1])
+        return H.ravel() if H.size == H.shape[-1] else H
+
     def _one(self, X, H, first):
         if first:
-            return _rows_times(X, (H * self.w)[:, None])
+            if H.ndim == 1:
+                return _rows_times(X, (H * self.w)[:, None])
+            return np.sum(X * (H * self.w), axis=-1, keepdims=True)
         y = scipy.fft.ifft(X * H, axis=-1, norm="ortho", overwrite_x=True)
         return y[..., self.m:self.m + self.N]
 
@@ -398,7 +417,7 @@ class _FilteredRows(dr.CustomOp):
         for k, (H, f) in enumerate(zip(self.H, self.first)):
             dY = dX * H
             if self.needs[k]:
-                dY = dY + self.Xe * _pair_numpy(dh[k][0], dh[k][1]).ravel()
+                dY = dY + self.Xe * self._response(dh[k])
             y = self._one(dY, np.ones_like(H), f)
             outs += [mi.TensorXf(np.ascontiguousarray(y.real, np.float32)),
                      mi.TensorXf(np.ascontiguousarray(y.imag, np.float32))]
@@ -412,11 +431,10 @@ class _FilteredRows(dr.CustomOp):
             S = self._spectrum(_pair_numpy(g[2 * k], g[2 * k + 1]), f)
             part = np.conj(H) * S
             S_x = part if S_x is None else S_x + part
-            if self.needs[k]:
-                G = np.sum((np.conj(self.Xe) * S).reshape(-1, S.shape[-1]), axis=0)
-            else:
-                G = np.zeros(H.shape, complex)
-            gh.append(ops.tensor(G.reshape(self.h_shapes[k])))
+            shape = self.h_shapes[k]
+            G = (_sum_to(np.conj(self.Xe) * S, shape) if self.needs[k]
+                 else np.zeros(shape, complex))
+            gh.append(ops.tensor(G.reshape(shape)))
         G_e = scipy.fft.ifft(S_x, axis=-1, norm="ortho", overwrite_x=True)
         m, N = self.m, self.N
         gx = np.array(G_e[..., m:m + N])

@@ -55,6 +55,7 @@ from ...errors import ConfigError
 from ...radar.config import SPEED_OF_LIGHT
 from .. import ops
 from ..base import Effect, ParamSpec
+from ._sensor_common import filter_rows
 from .scatterer import one_blas_thread, single_blas, static_view, unit_vectors
 
 dr, mi = ops.dr, ops.mi
@@ -308,7 +309,7 @@ class EgoMotion(Effect):
                 cos_j = float(np.cos(np.radians(az[j])))
                 xj = ops.cmul(xj, ops.cis(ops.tensor((bins + fast) * cos_j) * v))
                 moved = xj if moved is None else ops.cadd(moved, xj)
-        xr = ops.idft(ops.cmul(ops.dft(rest), ops.cis(ops.tensor(bins * cos_k) * v)))
+        xr = filter_rows(rest, None, [ops.cis(ops.tensor(bins * cos_k) * v)])[0]
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
         return xr if moved is None else ops.cadd(moved, xr)
 
