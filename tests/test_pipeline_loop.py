@@ -46,6 +46,12 @@ def test_01_planted_gains_adopted_and_reported(report):
     # every adopted mean-only effect lowered the held-out residual energy
     chosen = next(c for c in a["candidates"] if c["name"] == a["name"])
     assert chosen["energy_change_db"] < 0, chosen
+    # where the time went: the round's wall seconds and each candidate's fold fits
+    assert a["seconds"]["rank"] > 0 and a["seconds"]["adopt"] > 0
+    assert all(c["fit_s"] > 0 for c in a["candidates"])
+    assert sum(c["fit_s"] for c in a["candidates"]) < saved["timings"]["diagnose_s"] * 2
+    with open(os.path.join(out, "report.md")) as f:
+        assert "| fit [s] |" in f.read()
 
 
 def test_02_overlap_warning_needs_both_the_adc_residual_and_the_ra_map():

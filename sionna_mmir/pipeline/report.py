@@ -108,11 +108,15 @@ def loop_markdown(doc: dict) -> str:
           "## Scene mismatch (absorbed by the scene refit)", "", "```",
           json.dumps(doc["scene_mismatch"], indent=1)[:3000], "```", ""]
     for k, a in enumerate(doc["adoptions"]):
-        L += [f"## Adoption {k + 1}: {a['name']}", "", a["verdict"], "",
-              "| candidate | params | held-out gain | score | held-out residual change [dB] |",
-              "|---|---|---|---|---|"]
+        secs = a.get("seconds") or {}
+        L += [f"## Adoption {k + 1}: {a['name']}", "", a["verdict"], ""]
+        if secs:
+            L += [f"Round: ranking {secs['rank']:.1f} s, adoption {secs['adopt']:.1f} s.", ""]
+        L += ["| candidate | params | held-out gain | score | held-out residual change [dB] "
+              "| fit [s] |", "|---|---|---|---|---|---|"]
         L += [f"| {c['name']} | {c['n_params']} | {c['gain']:.1f} | {c['score']:.1f} | "
-              f"{c.get('energy_change_db', 0.0):+.3f} |" for c in a["candidates"][:8]]
+              f"{c.get('energy_change_db', 0.0):+.3f} | {c.get('fit_s', 0.0):.1f} |"
+              for c in a["candidates"][:8]]
         L += ["", f"![residual](adopt_{k + 1}_{a['name']}.png)", ""]
     u = doc["unexplained"]
     L += ["## Unexplained", "",
