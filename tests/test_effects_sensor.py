@@ -820,6 +820,16 @@ def test_30_filtered_rows_match_dense_matrices_and_their_adjoints():
             got = (np.asarray(dr.grad(hs[k][0]), np.float64)
                    + 1j * np.asarray(dr.grad(hs[k][1]), np.float64))
             np.testing.assert_allclose(got, gh, rtol=1e-4, atol=1e-4 * np.abs(gh).max())
+        # x held fixed (no gradient): the responses' adjoint alone, unchanged
+        h0 = ops.tensor(H[0])
+        dr.enable_grad(h0[0], h0[1])
+        with ops.single_thread():
+            (y0,) = ext.filter(ops.tensor(x), E, [h0])
+            w0 = ops.tensor(W[0])
+            dr.backward(dr.sum(y0[0] * w0[0] + y0[1] * w0[1], axis=None))
+        got = np.asarray(dr.grad(h0[0]), np.float64) + 1j * np.asarray(dr.grad(h0[1]), np.float64)
+        gh = (back[0] * np.conj(Xe)).sum(axis=(0, 1, 2), keepdims=True)
+        np.testing.assert_allclose(got, gh, rtol=1e-4, atol=1e-4 * np.abs(gh).max())
 
 
 # ============================================== IF filter: two stages, settling

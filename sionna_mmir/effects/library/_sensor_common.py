@@ -318,7 +318,7 @@ def filter_rows(x, E, responses, first=()):
     m = 0 if E is None else (E.shape[0] - E.shape[1]) // 2
     out = dr.custom(_FilteredRows, x[0], x[1], hs, head=None if E is None else E[:m],
                     tail=None if E is None else E[E.shape[0] - m:], first=first,
-                    needs=tuple(needs))
+                    needs=tuple(needs), needs_x=dr.grad_enabled(x[0]) or dr.grad_enabled(x[1]))
     return [(out[2 * k], out[2 * k + 1]) for k in range(len(hs))]
 
 
@@ -359,8 +359,8 @@ class _FilteredRows(dr.CustomOp):
     ``G_H_k = sum conj(F P x) (F C^T G_k)`` over the axes ``H_k`` broadcasts.
     """
 
-    def eval(self, re, im, hs, head=None, tail=None, first=(), needs=()):
-        self.first, self.needs = first, needs
+    def eval(self, re, im, hs, head=None, tail=None, first=(), needs=(), needs_x=True):
+        self.first, self.needs, self.needs_x = first, needs, needs_x
         self.m = 0 if head is None else head.shape[0]
         # a predictor of order p reads only the p samples next to its edge:
         # the products use the matrices' nonzero columns alone
@@ -429,12 +429,16 @@ class _FilteredRows(dr.CustomOp):
         gh = []
         for k, (H, f) in enumerate(zip(self.H, self.first)):
             S = self._spectrum(_pair_numpy(g[2 * k], g[2 * k + 1]), f)
-            part = np.conj(H) * S
-            S_x = part if S_x is None else S_x + part
+            if self.needs_x:
+                part = np.conj(H) * S
+                S_x = part if S_x is None else S_x + part
             shape = self.h_shapes[k]
             G = (_sum_to(np.conj(self.Xe) * S, shape) if self.needs[k]
                  else np.zeros(shape, complex))
             gh.append(ops.tensor(G.reshape(shape)))
+        self.set_grad_in("hs", gh)
+        if not self.needs_x:                 # x is held fixed: no inverse DFT of S
+            return
         G_e = scipy.fft.ifft(S_x, axis=-1, norm="ortho", overwrite_x=True)
         m, N = self.m, self.N
         gx = np.array(G_e[..., m:m + N])
@@ -445,7 +449,6 @@ class _FilteredRows(dr.CustomOp):
         gx = ops.tensor(gx)
         self.set_grad_in("re", gx[0])
         self.set_grad_in("im", gx[1])
-        self.set_grad_in("hs", gh)
 
     def name(self):
         return "FilteredRows"
