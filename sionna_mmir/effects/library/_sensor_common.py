@@ -3,9 +3,11 @@
 * constructor-argument checks that raise :class:`~sionna_mmir.errors.ConfigError`
   naming the argument;
 * the physical beat-frequency axis of the range bins (:func:`band_frequencies`);
-* :class:`RowExtension`: steady-state spectral operators (filters, time
-  derivatives) on a finite ADC window, by extending every fast-time row with
-  linear prediction before the DFT (AD through a fixed linear map);
+* :class:`RowExtension` and :func:`filter_rows`: steady-state spectral
+  operators (filters, time derivatives, per-bin phase shifts) on a finite
+  ADC window, by extending every fast-time row with linear prediction before
+  the DFT, as one host operator with its adjoint (AD through a fixed linear
+  map in the rows, linear in each response);
 * constant tensors shaped for broadcasting against ``[F, T, R, C, N]``;
 * coherent grid scans and peak refinement for data-driven initial values;
 * a numerically safe softplus on Dr.Jit tensors;
