@@ -223,6 +223,20 @@ if __name__ == "__main__":
 """
 
 
+def test_07b_a_worker_started_after_its_loop_died_exits():
+    """The watcher follows the loop's process id, given by the loop: a worker
+    that starts after the loop is gone (it is then a child of init) exits
+    at once instead of waiting for work forever."""
+    import subprocess
+    import sys
+
+    code = ("import os; from sionna_mmir.residual.workers import _exit_with_parent; "
+            "_exit_with_parent(os.getppid() + 1234567, period=0.05); print('still here')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0 and "still here" not in out.stdout
+
+
 def test_07_workers_exit_when_their_loop_is_killed(tmp_path):
     """A loop killed outright (SIGKILL: no clean-up runs) leaves no worker behind."""
     import signal

@@ -69,14 +69,15 @@ def one_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _init_worker():
+def _init_worker(parent: int):
     """A worker is one core's worth of work: BLAS and Dr.Jit on one thread;
-    it exits when its parent is gone (a killed loop leaves no process)."""
+    it exits when ``parent`` (the loop's process id) is gone, even when that
+    happened before the worker started (a killed loop leaves no process)."""
     import threading
 
     from ..utils.backend import init_backend
 
-    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     _LOADED["blas"] = one_blas_thread()
     init_backend()
     import drjit as dr
@@ -84,8 +85,9 @@ def _init_worker():
     dr.set_thread_count(1)
 
 
-def _exit_with_parent(ppid: int, period: float = 1.0) -> None:
-    while os.getppid() == ppid:
+def _exit_with_parent(parent: int, period: float = 1.0) -> None:
+    """Exit this process as soon as its parent is no longer ``parent``."""
+    while os.getppid() == parent:
         time.sleep(period)
     os._exit(0)
 
@@ -116,6 +118,7 @@ def _executor(n: int):
         # the workers must pick the parent's Mitsuba variant (they inherit the environment)
         os.environ.setdefault(VARIANT_ENV, init_backend())
         _EXECUTORS[n] = ProcessPoolExecutor(max_workers=n, initializer=_init_worker,
+                                            initargs=(os.getpid(),),
                                             mp_context=multiprocessing.get_context("spawn"))
     return _EXECUTORS[n]
 
