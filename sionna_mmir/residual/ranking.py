@@ -270,9 +270,7 @@ def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SER
 
     fits = pool.map(_candidate_task, [[(b[0], b[1]) for b in per] for per in bases],
                     [t[:-1] for t in tasks], done=done)
-    by_key = {}
-    for t, fit in zip(tasks, fits):
-        by_key[(t[0], t[1], t[2].name)] = fit
+    by_key = {(t[-1], t[1]): fit for t, fit in zip(tasks, fits)}    # ((group, cand), fold)
     return [_scores(g, cands, bases[g], by_key, penalty)
             for g, (_, cands, _) in enumerate(groups)]
 
@@ -280,10 +278,10 @@ def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SER
 def _scores(g, candidates, bases, fits, penalty) -> list:
     """The :class:`CandidateScore` of every candidate of group ``g``, best first."""
     out = []
-    for eff in candidates:
+    for i, eff in enumerate(candidates):
         gains, n_tot, cell_gains, energy, secs = [], 0.0, [], [0.0, 0.0], 0.0
         for k, (train, _, base, n_test) in enumerate(bases):
-            fit = fits[(g, k, eff.name)]
+            fit = fits[((g, i), k)]
             secs += fit["s"]
             nll0 = base["dev"] if fit["dev"] else base["nll"]
             gains.append(nll0 - fit["nll"] * n_test)
@@ -293,7 +291,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
                 energy[0] += base["energy"]
                 energy[1] += fit["energy"]
             n_tot += n_test
-        n_params = fits[(g, 0, eff.name)]["n_params"]
+        n_params = fits[((g, i), 0)]["n_params"]
         gain = float(np.sum(gains))
         out.append(CandidateScore(name=eff.name, n_params=n_params, gain=gain,
                                   gain_per_sample=gain / max(n_tot, 1.0),
