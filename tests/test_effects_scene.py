@@ -755,6 +755,57 @@ def test_20b_moving_scatterer_on_one_frame_needs_chirps():
 
 
 
+def test_20e_a_mover_moving_as_the_static_scene_is_held_to_the_scatterer_floor():
+    """A fitted track at a static point's radial velocity -- 0 at rest, or
+    ``-v cos(az) cos(el)`` (el up to 60 deg) once ego motion at ``v`` is in
+    the model -- is a scatterer the mesh lacks: its floor is the missing
+    scatterer's 0.1 nats per sample; a real walker keeps none (truth: the
+    hand-computed velocities below; half the velocity resolution 0.113 m/s
+    for the cascade's 16 loops)."""
+    from sionna_mmir.effects.library.moving_scatterer import moves_as_static
+    from sionna_mmir.independent.undeclared import coloradar_cascade
+
+    radar = coloradar_cascade(num_chirps=16, num_samples=64)
+    ctx = EffectContext(radar)
+    half = 0.5 * radar.velocity_resolution
+    assert 0.11 < half < 0.12
+    y = _noise(ctx.shape, np.random.default_rng(3))
+    m = EffectModel(ctx, y, y)
+    mover = MovingScatterer()
+
+    def track(v, az=40.0):
+        return {"range": [3.0], "azimuth": [az], "velocity": [v], "amp": [[1.0, 0.0]]}
+
+    # at rest: only velocities within half a resolution cell are static
+    assert moves_as_static(m, track(0.9 * half)) and not moves_as_static(m, track(1.1 * half))
+    assert mover.fitted_gain_floor(m, track(0.0)) == pytest.approx(0.1)
+    assert mover.fitted_gain_floor(m, track(-0.93)) == 0.0
+    # ego motion at 0.77 m/s towards the scene: a static point at 40 deg moves
+    # at -0.77 cos(40) = -0.590 m/s in the plane, -0.295 at 60 deg elevation
+    ego = m.add(EgoMotion())
+    ego.values["velocity"] = np.array([0.77])
+    assert moves_as_static(m, track(-0.59)) and moves_as_static(m, track(-0.30))
+    assert moves_as_static(m, track(-0.59 - 0.9 * half))
+    assert not moves_as_static(m, track(-0.59 - 1.1 * half))
+    assert not moves_as_static(m, track(-0.295 + 1.1 * half))
+    assert not moves_as_static(m, track(0.0))           # at rest in the radar's frame: a mover
+    # at boresight: -0.77 in the plane, -0.59 for a point 40 deg below it
+    assert moves_as_static(m, track(-0.59, az=0.0))
+    assert not moves_as_static(m, track(-0.2, az=0.0))
+    assert mover.fitted_gain_floor(m, track(-0.59)) == pytest.approx(0.1)
+    assert mover.fitted_gain_floor(m, track(0.0)) == 0.0
+    # every frame must be static; one chirp loop resolves no velocity
+    two = {"range": [3.0, 3.0], "azimuth": [40.0, 40.0], "velocity": [-0.59, 0.5],
+           "amp": [[1.0, 0.0]] * 2}
+    assert not moves_as_static(m, two)
+    one = EffectModel(EffectContext(coloradar_cascade(num_chirps=1, num_samples=64),
+                                    num_frames=2, frame_period=0.1),
+                      _noise((2, 12, 16, 1, 64), np.random.default_rng(4)),
+                      _noise((2, 12, 16, 1, 64), np.random.default_rng(5)))
+    assert not moves_as_static(one, {**track(0.0), "velocity": [0.0, 0.0],
+                                     "azimuth": [40.0, 40.0]})
+
+
 def test_20d_moving_scatterer_init_finds_the_mover_beside_a_stronger_static_point():
     """A static point the scene lacks, 4x stronger than a walker, does not move
     from chirp to chirp: the mover's init lands on the walker (truth: direct

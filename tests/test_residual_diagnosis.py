@@ -357,6 +357,68 @@ def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
     assert best.name == "channel_gain"
 
 
+def test_14b_a_candidates_fitted_floor_is_held_against_its_gain():
+    """The ranking takes the larger of an effect's own gain floor and the
+    floor its fits called for (:attr:`CandidateScore.gain_floor`): a mover
+    whose fit moves as the static scene does is not adopted under the
+    scatterer floor, a sensor effect then is (truth: the fixed gains)."""
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.residual.ranking import CandidateScore, _rank_round
+
+    class Tiers:
+        model = type("M", (), {"ctx": EffectContext(RadarConfig.awr1843(num_chirps=16))})()
+
+        def __init__(self, floor):
+            self.floor = floor
+
+        def rank(self, group, penalty, maxiter, progress):
+            return [CandidateScore(e.name, 1, g, g / 1e4, g - 1, [g],
+                                   gain_floor=self.floor if e.name == "moving_scatterer" else 0.0)
+                    for e, g in zip(group, (3000.0, 400.0))]
+
+        def on_one_scale(self, ranking, best, *args):
+            return ranking, best
+
+    pool = [MovingScatterer(), ChannelGain()]
+    _, best = _rank_round(Tiers(0.0), pool, 1.0, 10, None, 0.0, set())
+    assert best.name == "moving_scatterer"               # 0.3 nats per sample, no floor
+    _, best = _rank_round(Tiers(0.5), pool, 1.0, 10, None, 0.0, set())
+    assert best.name == "channel_gain"                   # under the floor its fit called for
+
+
+def test_14c_fold_fits_report_the_floor_of_a_static_looking_mover():
+    """End to end through the fold fits: a radar approaching at 0.6 m/s, a
+    static point the scene lacks; with ego motion adopted, the mover fitted
+    to that point moves at the static scene's velocity and its score carries
+    the scatterer floor; the same point moving on its own does not (truth:
+    the planted delays of ``direct_adc``)."""
+    from helpers import direct_adc, point_target_delays
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.effects.library.scatterer import unit_vectors
+    from sionna_mmir.residual.ranking import rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    ctx = EffectContext(radar)
+    v = 0.6
+
+    def point(r, az, rate, amp):
+        return direct_adc(radar, amp, point_target_delays(radar, r * unit_vectors(az)), rate)[None]
+
+    base = point(3.3, 0.0, -2 * v / C, 1.0)               # the scene, seen from the moving radar
+    static = point(2.4, 30.0, -2 * v * np.cos(np.radians(30.0)) / C, 0.05)
+    walker = point(2.4, 30.0, 2 * 1.0 / C, 0.05)
+    folds = cv_folds(ctx.shape[:4], 3)
+    for extra, floor in ((static, 0.1), (walker, 0.0)):
+        y = base + extra + _noise(base.shape, 0.01, 7)
+        m = EffectModel(ctx, y, point(3.3, 0.0, 0.0, 1.0))
+        ego = m.add(EgoMotion())
+        ego.values["velocity"] = np.array([v])
+        (score,) = rank_candidates(m, [MovingScatterer()], folds, maxiter=40)
+        assert score.gain > 0
+        assert score.gain_floor == pytest.approx(floor), (floor, score)
+
+
 def test_15_a_noise_model_is_scored_on_the_chirp_to_chirp_scatter():
     """Phase noise (a stationary variance model) is scored on the residual's
     chirp-to-chirp deviation: a static misfit of the scene (a target 25 %

@@ -141,6 +141,15 @@ class Effect:
         ``ctx``'s shape (default: :attr:`min_gain_per_sample`)."""
         return float(self.min_gain_per_sample)
 
+    def fitted_gain_floor(self, model, values: dict) -> float:
+        """:meth:`gain_floor` once the candidate is fitted: ``model`` is the
+        fold's candidate model (an :class:`~sionna_mmir.effects.model.EffectModel`
+        with this effect last), ``values`` its fitted parameters.  The
+        default ignores both; an effect whose fit can show it to be
+        something with a stricter floor (a mover moving exactly as the
+        static scene does) overrides it."""
+        return self.gain_floor(model.ctx)
+
     def param_specs(self, ctx, model: np.ndarray, residual: np.ndarray) -> dict:
         """Parameter blocks with data-driven initial values.
 

@@ -41,6 +41,9 @@ class CandidateScore:
     energy_change_db: float = 0.0
     #: seconds its fold fits took (summed over folds, each timed where it ran)
     fit_s: float = 0.0
+    #: least gain per sample its fits call for (:meth:`~sionna_mmir.effects.base.Effect.fitted_gain_floor`,
+    #: the median over folds); the ranking takes the larger of it and the effect's own floor
+    gain_floor: float = 0.0
 
     def to_dict(self) -> dict:
         return {k: (round(v, 6) if isinstance(v, float) else v)
@@ -213,8 +216,10 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
     cand = base.copy()
     cand.add(copy.deepcopy(eff), cells=train)          # fresh state per fold
     _fit_candidate(cand, eff, train, maxiter)
+    last = cand.components[-1]
     out = {"nll": cand.nll_profiled(~train, deviation=deviation),
-           "n_params": int(cand.components[-1].n_params), "dev": deviation}
+           "n_params": int(last.n_params), "dev": deviation,
+           "floor": float(last.effect.fitted_gain_floor(cand, last.values))}
     if eff.kind == "variance":
         out["slots"] = cand.nll_profiled(~train, True, by_slot=True)[1]
     else:
@@ -280,9 +285,11 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
     out = []
     for i, eff in enumerate(candidates):
         gains, n_tot, cell_gains, energy, secs = [], 0.0, [], [0.0, 0.0], 0.0
+        floors = []
         for k, (train, _, base, n_test) in enumerate(bases):
             fit = fits[((g, i), k)]
             secs += fit["s"]
+            floors.append(fit["floor"])
             nll0 = base["dev"] if fit["dev"] else base["nll"]
             gains.append(nll0 - fit["nll"] * n_test)
             if eff.kind == "variance":
@@ -301,7 +308,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
                                               if cell_gains else 1.0),
                                   energy_change_db=(_db(energy[1] / energy[0])
                                                     if energy[0] > 0 else 0.0),
-                                  fit_s=secs))
+                                  fit_s=secs, gain_floor=float(np.median(floors))))
     return sorted(out, key=lambda c: c.score, reverse=True)
 
 
@@ -448,7 +455,8 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
         variance = kinds_of.get(c.name) == "variance"
         stationary = not variance or c.slot_share >= MIN_SLOT_SHARE
         predicts_mean = c.name not in mean_only or c.energy_change_db <= 0.0
-        return (c.score > 0 and c.gain_per_sample >= floor.get(c.name, min_gain) and stationary
+        least = max(floor.get(c.name, min_gain), c.gain_floor)
+        return (c.score > 0 and c.gain_per_sample >= least and stationary
                 and predicts_mean and c.name not in vetoed)
 
     ranking = []

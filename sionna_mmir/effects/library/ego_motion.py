@@ -313,6 +313,15 @@ class EgoMotion(Effect):
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
         return xr if moved is None else ops.cadd(moved, xr)
 
+    @staticmethod
+    def static_radial_velocity(values, az_deg, el_deg=0.0):
+        """Radial velocity [m/s] (positive receding, a mover's convention) of
+        a static point at azimuth ``az_deg`` and elevation ``el_deg`` seen
+        from the radar moving at the fitted ``values["velocity"]``:
+        ``-v cos(az) cos(el)``."""
+        v = float(np.asarray(values["velocity"]).reshape(-1)[0])
+        return -v * np.cos(np.radians(az_deg)) * np.cos(np.radians(el_deg))
+
     def summary(self, p, ctx):
         v = float(p["velocity"][0])
         lam = ctx.radar.wavelength

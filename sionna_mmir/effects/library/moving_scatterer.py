@@ -76,6 +76,38 @@ def moving_signal_np(ctx, r, az_deg, v, amp) -> np.ndarray:
     return np.asarray(amp)[:, None, None, None, None] * np.exp(1j * ph)
 
 
+#: elevations a static point may have [deg] when its radial velocity is judged
+#: (:func:`moves_as_static`): the tracked azimuth is in the array's plane, the
+#: floor and ceiling seen from the radar are not
+STATIC_ELEVATION_DEG = 60.0
+
+
+def moves_as_static(model, values) -> bool:
+    """Whether a fitted track's radial velocity in every frame is that of a
+    static point at its azimuth, at any elevation up to
+    :data:`STATIC_ELEVATION_DEG`, to within half the radar's velocity
+    resolution (:attr:`~sionna_mmir.radar.RadarConfig.velocity_resolution`).
+
+    The static point's velocity is 0, or, where a component of ``model``
+    moves the static scene (one with ``static_radial_velocity``, i.e. ego
+    motion), ``-v cos(az) cos(el)``.  False with one chirp per frame (no
+    velocity is resolved within a frame)."""
+    ctx = model.ctx
+    if ctx.shape[3] < 2:
+        return False
+    half = 0.5 * ctx.radar.velocity_resolution
+    az = np.asarray(values["azimuth"], np.float64)
+    v = np.asarray(values["velocity"], np.float64)
+    ego = [c for c in model.components if hasattr(c.effect, "static_radial_velocity")]
+    if ego:
+        top = ego[0].effect.static_radial_velocity(ego[0].values, az)
+        low = ego[0].effect.static_radial_velocity(ego[0].values, az, STATIC_ELEVATION_DEG)
+    else:
+        top = low = np.zeros_like(az)
+    lo, hi = np.minimum(top, low) - half, np.maximum(top, low) + half
+    return bool(np.all((v >= lo) & (v <= hi)))
+
+
 def _unit(az_deg) -> np.ndarray:
     a = np.radians(np.asarray(az_deg, np.float64))
     return np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)
@@ -275,6 +307,17 @@ class MovingScatterer(Effect):
         mover (a weak walker explains a few thousandths of a nat per sample
         of a whole frame)."""
         return self.min_gain_per_sample if ctx.shape[3] < 2 else 0.0
+
+    def fitted_gain_floor(self, model, values) -> float:
+        """:attr:`min_gain_per_sample` also for a fitted track that moves as
+        the static scene does (:func:`moves_as_static`): a point at rest, or,
+        once ego motion is adopted, a static point seen from the moving
+        radar.  Such a "mover" is a scatterer the mesh lacks and is held to
+        the floor that keeps diffuse clutter from becoming a list of
+        scatterers, as ``missing_scatterer`` is; else :meth:`gain_floor`."""
+        if moves_as_static(model, values):
+            return float(self.min_gain_per_sample)
+        return self.gain_floor(model.ctx)
 
     @single_blas
     def param_specs(self, ctx, model, residual):
