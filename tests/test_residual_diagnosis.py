@@ -449,6 +449,39 @@ def test_15_a_noise_model_is_scored_on_the_chirp_to_chirp_scatter():
     assert gain(clean * np.exp(1j * phi) + _noise(clean.shape, 3e-3, 21)) > 100
 
 
+def test_15b_a_noise_model_is_fitted_on_the_scatter_it_is_scored_on():
+    """Real LO phase noise beside a static misfit of the scene 20 dB above
+    the noise: a noise model fitted to the whole residual widens its
+    variance where the misfit is and then overpredicts the chirp-to-chirp
+    scatter it is scored on; fitted to that scatter (the model plus the
+    residual's deviation from its chirp mean), it gains what the phase
+    noise is there for.  The coloured floor likewise (truth: the planted
+    misfit, phase-noise draws and shaped noise)."""
+    from test_effects_sensor import _phase_noise_draws
+
+    from sionna_mmir.effects.library.phase_noise import PhaseNoise
+    from sionna_mmir.residual.ranking import rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=8, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    folds = cv_folds(ctx.shape[:4], 3)
+    true = synthesize_adc(radar, np.array([1.25, 0.4j]), 2 * np.array([1.804, 3.7]) / C)[None]
+    F, T, _, Cn, N = ctx.shape
+    phi = _phase_noise_draws(np.random.default_rng(22), (F, T, 1, Cn), N, -35.0, 2.0)
+    noise = _noise(clean.shape, 3e-3, 21)
+    m = EffectModel(ctx, true * np.exp(1j * phi) + noise, clean)
+    m.fit(trainable=[])
+    (c,) = rank_candidates(m, [PhaseNoise()], folds)
+    assert c.gain > 100, c
+    b, a = signal.butter(2, 0.2)                                  # low-pass coloured noise
+    coloured = signal.lfilter(b, a, _noise(clean.shape, 2e-2, 23), axis=-1)
+    m = EffectModel(ctx, true + noise + coloured, clean)
+    m.fit(trainable=[])
+    (c,) = rank_candidates(m, [NoiseFloor()], folds)
+    assert c.gain > 100, c
+
+
 def test_16_ego_motion_is_scored_beside_a_mover_it_makes_redundant():
     """A static scene seen from a radar moving at 0.73 m/s: a mover adopted
     first takes the strongest target at its line-of-sight speed.  Ego motion

@@ -299,6 +299,25 @@ class EffectModel:
         return [ops.tensor(np.broadcast_to(B[None], self.ctx.shape) * k)
                 for B in self.ctx.basis.adc]
 
+    def on_chirp_deviation(self) -> "EffectModel":
+        """A copy measuring the current mean model plus the residual's
+        deviation from its chirp mean, ``x + (r - mean_c r) sqrt(C / (C - 1))``:
+        the chirp-to-chirp scatter a stationary noise model must predict
+        (:meth:`nll_profiled` with ``deviation``), without the chirp-mean
+        misfit that is the mean model's to explain.  ``self`` with one chirp
+        loop."""
+        C = self.ctx.shape[3]
+        if C < 2:
+            return self
+        x = self.mean_variance_numpy()[0]
+        r = self.y - x
+        new = self.copy()
+        new.y = x + (r - r.mean(axis=3, keepdims=True)) * np.sqrt(C / (C - 1))
+        new.Y_numpy = np.fft.fft(new.y, axis=-1, norm="ortho")
+        new.Y = ops.tensor(new.Y_numpy)
+        new.y_t = ops.tensor(new.y)
+        return new
+
     def copy(self) -> "EffectModel":
         """Shallow copy with independent component values (tensors are shared)."""
         new = object.__new__(EffectModel)

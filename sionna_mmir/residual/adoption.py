@@ -137,7 +137,8 @@ def _adopt(model, eff, maxiter, pool=SERIAL):
     after a mean effect); on chirp-averaged data when every component allows
     it (then the full model takes the values and refits its noise floor;
     chirp-varying components held fixed there are refitted jointly with the
-    rest on the full data).  An effect fitted on every chirp for its noise
+    rest on the full data).  A noise model is fitted to the chirp-to-chirp
+    scatter (:func:`_fit_noise_model`), as it was scored.  An effect fitted on every chirp for its noise
     shape (an IF filter) is backfitted on the chirp average: the earlier
     effects' signatures are in the mean, at ``1 / C`` of the cost.  A mover
     is backfitted on every chirp: on the average it would be held fixed, so
@@ -146,6 +147,9 @@ def _adopt(model, eff, maxiter, pool=SERIAL):
     static = _averaged_scoring(eff) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
+    if eff.kind == "variance" and work.ctx.shape[3] > 1:
+        _fit_noise_model(work, comp, maxiter)
+        return comp
     work.fit(maxiter=2 * maxiter)
     if eff.kind != "variance":      # a noise model only reweights the mean fit
         if work is model and getattr(eff, "shapes_noise", False) and model.can_average() \
@@ -155,6 +159,21 @@ def _adopt(model, eff, maxiter, pool=SERIAL):
     if work is not model:                   # the values carry over
         comp = _carry_back(model, work, comp, maxiter)
     return comp
+
+
+def _fit_noise_model(model, comp, maxiter) -> None:
+    """Fit the variance component ``comp`` to the chirp-to-chirp scatter it
+    was scored on (:meth:`~sionna_mmir.effects.model.EffectModel.on_chirp_deviation`),
+    then refit the mean components and the nuisance beside it held fixed: a
+    noise model fitted to the whole residual would widen its variance where
+    the scene misfit is instead of where the noise is."""
+    k = _position(model, comp)
+    dev = model.on_chirp_deviation()
+    dev.fit(trainable=[k], maxiter=2 * maxiter)
+    comp.values = dev.components[k].values
+    model.nuisance.values = dev.nuisance.values
+    model.fit(trainable=[i for i in range(len(model.components)) if i != k],
+              maxiter=2 * maxiter)
 
 
 def _backfit_on_average(model, comp, maxiter, pool=SERIAL):

@@ -40,9 +40,10 @@ the noise where the residual is large; a mean effect explains it.  Each
 round therefore ranks the mean-kind candidates first and adopts the best
 one when its score is positive; the variance-kind candidates are scored
 (and may be adopted) only in a round where no mean candidate helps,
-scored with several chirp loops on the residual's chirp-to-chirp deviation
-alone (the scatter a stationary noise model predicts; the chirp-mean misfit
-is the mean model's to explain), and
+fitted and scored with several chirp loops on the residual's chirp-to-chirp
+deviation alone (the scatter a stationary noise model predicts; the
+chirp-mean misfit is the mean model's to explain: a noise model fitted to
+it would widen its variance there and overpredict the scatter), and
 only when they help in most transmit slots (frame, Tx, chirp; in TDM-MIMO
 every Tx fires in its own slot) (:data:`~.ranking.MIN_SLOT_SHARE`):
 a stationary noise model that gains in a few chirps only is absorbing a

@@ -215,7 +215,14 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
     train, base = shared[g][k]
     cand = base.copy()
     cand.add(copy.deepcopy(eff), cells=train)          # fresh state per fold
-    _fit_candidate(cand, eff, train, maxiter)
+    if deviation:              # fitted to the scatter it is scored on
+        work = cand.on_chirp_deviation()
+        _fit_candidate(work, eff, train, maxiter)
+        cand.nuisance.values = work.nuisance.values
+        for c, w in zip(cand.components, work.components):
+            c.values = w.values
+    else:
+        _fit_candidate(cand, eff, train, maxiter)
     last = cand.components[-1]
     out = {"nll": cand.nll_profiled(~train, deviation=deviation),
            "n_params": int(last.n_params), "dev": deviation,
