@@ -480,6 +480,7 @@ def test_15b_a_noise_model_is_fitted_on_the_scatter_it_is_scored_on():
     m.fit(trainable=[])
     (c,) = rank_candidates(m, [NoiseFloor()], folds)
     assert c.gain > 100, c
+    assert c.slot_share > 0.9, c           # stationary: judged on the same scatter
 
 
 def test_16_ego_motion_is_scored_beside_a_mover_it_makes_redundant():

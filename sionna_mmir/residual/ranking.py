@@ -112,7 +112,8 @@ def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple
     if "dev" in needs:
         out["dev"] = base.nll_profiled(test, deviation=True) * n_test
     if "slots" in needs:
-        out["slots"] = base.nll_profiled(test, True, by_slot=True)[1]
+        out["slots"] = base.nll_profiled(test, True, by_slot=True,
+                                         deviation=model.ctx.shape[3] > 1)[1]
     if "energy" in needs:
         out["energy"] = base.residual_energy(test)
     return base.nuisance.values, out
@@ -228,7 +229,7 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
            "n_params": int(last.n_params), "dev": deviation,
            "floor": float(last.effect.fitted_gain_floor(cand, last.values))}
     if eff.kind == "variance":
-        out["slots"] = cand.nll_profiled(~train, True, by_slot=True)[1]
+        out["slots"] = cand.nll_profiled(~train, True, by_slot=True, deviation=deviation)[1]
     else:
         out["energy"] = cand.residual_energy(~train)
     out["s"] = time.perf_counter() - t0
