@@ -138,9 +138,10 @@ def _adopt(model, eff, maxiter, pool=SERIAL):
     it (then the full model takes the values and refits its noise floor;
     chirp-varying components held fixed there are refitted jointly with the
     rest on the full data).  A noise model is fitted to the chirp-to-chirp
-    scatter (:func:`_fit_noise_model`), as it was scored.  An effect fitted on every chirp for its noise
-    shape (an IF filter) is backfitted on the chirp average: the earlier
-    effects' signatures are in the mean, at ``1 / C`` of the cost.  A mover
+    scatter (:func:`_fit_noise_model`), as it was scored.  An effect fitted
+    on every chirp for its noise shape (an IF filter) is backfitted on the
+    chirp average: the earlier effects' signatures are in the mean, at
+    ``1 / C`` of the cost.  A mover
     is backfitted on every chirp: on the average it would be held fixed, so
     its own refit would wait for a kept trial and leave part of a
     chirp-varying residual to the next mover.  Returns the new component."""

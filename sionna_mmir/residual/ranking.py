@@ -41,8 +41,9 @@ class CandidateScore:
     energy_change_db: float = 0.0
     #: seconds its fold fits took (summed over folds, each timed where it ran)
     fit_s: float = 0.0
-    #: least gain per sample its fits call for (:meth:`~sionna_mmir.effects.base.Effect.fitted_gain_floor`,
-    #: the median over folds); the ranking takes the larger of it and the effect's own floor
+    #: least gain per sample its fits call for (the median over folds of
+    #: :meth:`~sionna_mmir.effects.base.Effect.fitted_gain_floor`); the
+    #: ranking takes the larger of it and the effect's own floor
     gain_floor: float = 0.0
 
     def to_dict(self) -> dict:
