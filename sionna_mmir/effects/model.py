@@ -522,7 +522,13 @@ class EffectModel:
         ``C / (C - 1)`` (the expected power of a deviation of independent
         chirps): the chirp-to-chirp scatter a stationary noise model must
         predict, without the chirp-mean misfit that is the mean model's to
-        explain.  The cells must hold every chirp loop of their channels.
+        explain.  With ``deviation="median"`` it is the deviation from the
+        median over the chirp loops (per range bin, real and imaginary parts),
+        which a disturbance in a few chirps does not move: it stays in those
+        chirps instead of leaking ``1 / C`` of itself into every other one (for
+        judging where a noise model helps, ``by_slot``; the scale is not
+        corrected, which the profiled floors absorb).  The cells must hold
+        every chirp loop of their channels.
         """
         x, v = self.mean_variance_numpy()
         cells = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
@@ -531,7 +537,10 @@ class EffectModel:
                                   "or selects no cells")
         r = self.Y_numpy - np.fft.fft(x, axis=-1, norm="ortho")
         C = self.ctx.shape[3]
-        if deviation and C > 1:
+        if deviation == "median" and C > 1:
+            r = r - (np.median(r.real, axis=3, keepdims=True)
+                     + 1j * np.median(r.imag, axis=3, keepdims=True))
+        elif deviation and C > 1:
             r = (r - r.mean(axis=3, keepdims=True)) * np.sqrt(C / (C - 1))
         r2 = np.abs(r[cells]) ** 2
         s = np.broadcast_to(self.white_shape_numpy(), v.shape)

@@ -114,10 +114,19 @@ def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple
         out["dev"] = base.nll_profiled(test, deviation=True) * n_test
     if "slots" in needs:
         out["slots"] = base.nll_profiled(test, True, by_slot=True,
-                                         deviation=model.ctx.shape[3] > 1)[1]
+                                         deviation=_slot_deviation(model.ctx.shape[3] > 1))[1]
     if "energy" in needs:
         out["energy"] = base.residual_energy(test)
     return base.nuisance.values, out
+
+
+def _slot_deviation(deviation: bool):
+    """How a noise model's per-slot gains are judged when it is scored on the
+    chirp-to-chirp scatter: on the deviation from the chirp *median*, where a
+    burst in a few chirps stays in those chirps (the deviation from the mean
+    would leave ``1 / C`` of it in every other chirp, and a noise model would
+    seem to help in every slot)."""
+    return "median" if deviation else False
 
 
 def _base_needs(model, candidates) -> tuple:
@@ -230,7 +239,8 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
            "n_params": int(last.n_params), "dev": deviation,
            "floor": float(last.effect.fitted_gain_floor(cand, last.values))}
     if eff.kind == "variance":
-        out["slots"] = cand.nll_profiled(~train, True, by_slot=True, deviation=deviation)[1]
+        out["slots"] = cand.nll_profiled(~train, True, by_slot=True,
+                                         deviation=_slot_deviation(deviation))[1]
     else:
         out["energy"] = cand.residual_energy(~train)
     out["s"] = time.perf_counter() - t0

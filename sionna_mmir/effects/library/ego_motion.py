@@ -18,14 +18,17 @@ The direction of the energy is taken from the current model signal ``x``
    peaks of its range profile, each with its channel vector ``d_j`` over the
    virtual array (the range spectrum at the peak) and azimuth ``az_j``
    (matched steering).  The components ``x_j = d_j (D^+ x)_j`` (``D^+`` the
-   pseudo-inverse of ``D = [d_j]``, per sample) move with ``cos(az_j)``,
+   pseudo-inverse of ``D = [d_j]``, per sample) move with the ego factor
+   ``c_j[t, r] = (b . u_t + b . u_r) / 2`` of each Tx-Rx pair (``u_t``,
+   ``u_r`` the unit vectors from the elements to the point at the peak's
+   range and ``az_j``; ``cos(az_j)`` in the far field, :func:`pair_cosines`),
    whatever range bin their (sidelobe) energy is in;
 2. the rest ``x_rest = x - sum_j x_j`` moves per unitary-DFT range bin ``k``
    with the bin's strongest azimuth ``cos(az_k)``.
 
 Then::
 
-    x' = [sum_j x_j e^{j 2 pi f_c rho cos(az_j) T} e^{j phi_fast cos(az_j)}
+    x' = [sum_j x_j e^{j 2 pi f_c rho c_j T} e^{j phi_fast c_j}
           + IDFT(DFT(x_rest) e^{j 2 pi f_c rho cos(az_k) T}) e^{j phi_fast}]
     phi_fast = 2 pi [S (t_k - t_c) rho T + (f0 + S t_k) rho t_k]
 
@@ -137,7 +140,8 @@ def _beam_peak(d, ctx, az0, width):
 def dominant_directions(z, ctx, max_dirs: int, min_share: float = 1e-3,
                         max_corr: float = 0.95, min_explained: float = 0.9,
                         az_limit: float = 80.0):
-    """Channel vectors of the strongest range peaks of ``z [T, R, N]``: ``(az [J], D [T R, J])``.
+    """Channel vectors of the strongest range peaks of ``z [T, R, N]``:
+    ``(az [J] deg, D [T R, J], ranges [J] m)``.
 
     Local maxima of the range profile (unitary-DFT bins) in decreasing power,
     above ``min_share`` of the total, each giving its unit channel vector
@@ -155,7 +159,7 @@ def dominant_directions(z, ctx, max_dirs: int, min_share: float = 1e-3,
     peaks = np.flatnonzero((prof >= np.roll(prof, 1)) & (prof >= np.roll(prof, -1)))
     peaks = peaks[np.argsort(prof[peaks])[::-1]]
     grid, A = grid_steering(ctx, 0.25, az_limit)
-    az, cols = [], []
+    az, cols, bins = [], [], []
     for k in peaks:
         if len(cols) >= max_dirs or total <= 0 or prof[k] < min_share * total:
             break
@@ -163,14 +167,38 @@ def dominant_directions(z, ctx, max_dirs: int, min_share: float = 1e-3,
         if cols and np.max(np.abs(np.conj(np.stack(cols)) @ d)) > max_corr:
             continue
         cols.append(d)
+        bins.append(k)
         az.append(_beam_peak(d, ctx, grid[int(np.argmax(np.abs(np.conj(A).T @ d)))], 0.25))
+    none = np.zeros(0), np.zeros((T * R, 0), complex), np.zeros(0)
     if not cols:
-        return np.zeros(0), np.zeros((T * R, 0), complex)
+        return none
     D = np.stack(cols, axis=1)
     explained = np.linalg.norm(D @ (np.linalg.pinv(D) @ Z)) ** 2 / max(total, 1e-300)
     if explained < min_explained:          # a rich scene: a partial dictionary would mis-move
-        return np.zeros(0), np.zeros((T * R, 0), complex)
-    return np.array(az), D
+        return none
+    return np.array(az), D, np.abs(ctx.bin_ranges[np.array(bins)])
+
+
+def pair_cosines(ctx, az_deg, ranges) -> np.ndarray:
+    """Ego factor ``(b . u_t + b . u_r) / 2`` of every Tx-Rx pair for points at
+    ``ranges`` [m] and azimuths ``az_deg`` [deg] (elevation 0) from the
+    array centre, ``[J, T, R]``: ``b`` the boresight, ``u_t`` / ``u_r`` the
+    unit vectors from each Tx / Rx to the point.  A moving radar shortens
+    the pair's delay at ``-v (b . u_t + b . u_r) / c``; across a wide array
+    in the near field the factor varies from pair to pair (the cascade's
+    16 cm aperture at 2 m: +-1.2 deg of azimuth, 0.3 rad of Doppler phase
+    over a 16-loop frame at 0.8 m/s), which one ``cos(az)`` per point misses.
+    """
+    tx = np.asarray(ctx.radar.tx_positions, np.float64)
+    rx = np.asarray(ctx.radar.rx_positions, np.float64)
+    centre = 0.5 * (tx.mean(axis=0) + rx.mean(axis=0))
+    p = centre + np.asarray(ranges, np.float64)[:, None] * unit_vectors(az_deg)   # [J, 3]
+
+    def boresight_share(el):
+        d = p[:, None, :] - el[None]
+        return d[..., 0] / np.linalg.norm(d, axis=-1)                              # [J, E]
+
+    return 0.5 * (boresight_share(tx)[:, :, None] + boresight_share(rx)[:, None, :])
 
 
 def _slow_correlation(model, data, ctx):
@@ -296,8 +324,9 @@ class EgoMotion(Effect):
             return ops.cmul(x, ops.cis(ops.tensor(bins + fast) * v))
         with one_blas_thread():
             z = static_view(ops.to_numpy(x))                                 # [T, R, N]
-            az, D = dominant_directions(z, ctx, self.max_directions)
+            az, D, rng = dominant_directions(z, ctx, self.max_directions)
             Dp = np.linalg.pinv(D) if len(az) else None                      # [J, T R]
+            cos_tr = pair_cosines(ctx, az, rng)                              # [J, T, R]
             if len(az):
                 z = z - (D @ (Dp @ z.reshape(T * R, N))).reshape(T, R, N)
             cos_k = bin_cosines(z, ctx).reshape(1, 1, 1, 1, N)
@@ -306,7 +335,7 @@ class EgoMotion(Effect):
             for j in range(len(az)):
                 xj = _component(x, D[:, j], Dp[j], (F, T, R, C, N))
                 rest = (rest[0] - xj[0], rest[1] - xj[1])
-                cos_j = float(np.cos(np.radians(az[j])))
+                cos_j = cos_tr[j].reshape(1, T, R, 1, 1)
                 xj = ops.cmul(xj, ops.cis(ops.tensor((bins + fast) * cos_j) * v))
                 moved = xj if moved is None else ops.cadd(moved, xj)
         xr = filter_rows(rest, None, [ops.cis(ops.tensor(bins * cos_k) * v)])[0]
