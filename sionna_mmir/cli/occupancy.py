@@ -9,7 +9,6 @@ point cloud and scores it against points sampled from the clean mesh
 """
 from __future__ import annotations
 
-import numpy as np
 
 from ..errors import ConfigError
 from ..paths.options import SolverOptions

@@ -33,7 +33,6 @@ materials (the radio materials have no frequency-update callback).
 """
 from __future__ import annotations
 
-import os
 
 from dataclasses import dataclass
 
