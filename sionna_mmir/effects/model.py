@@ -301,22 +301,36 @@ class EffectModel:
 
     def on_chirp_deviation(self) -> "EffectModel":
         """A copy measuring the current mean model plus the residual's
-        deviation from its chirp mean, ``x + (r - mean_c r) sqrt(C / (C - 1))``:
-        the chirp-to-chirp scatter a stationary noise model must predict
-        (:meth:`nll_profiled` with ``deviation``), without the chirp-mean
-        misfit that is the mean model's to explain.  ``self`` with one chirp
-        loop."""
-        C = self.ctx.shape[3]
-        if C < 2:
+        deviation from its chirp mean, ``x + (r - mean_c r) sqrt(C / (C - 1))``
+        (:func:`~.library._sensor_common.chirp_deviation`): the chirp-to-chirp
+        scatter a stationary noise model must predict (:meth:`nll_profiled`
+        with ``deviation``), without the chirp-mean misfit that is the mean
+        model's to explain.  ``self`` with one chirp loop."""
+        from .library._sensor_common import chirp_deviation
+
+        if self.ctx.shape[3] < 2:
             return self
         x = self.mean_variance_numpy()[0]
-        r = self.y - x
         new = self.copy()
-        new.y = x + (r - r.mean(axis=3, keepdims=True)) * np.sqrt(C / (C - 1))
+        new.y = x + chirp_deviation(self.y - x)
         new.Y_numpy = np.fft.fft(new.y, axis=-1, norm="ortho")
         new.Y = ops.tensor(new.Y_numpy)
         new.y_t = ops.tensor(new.y)
         return new
+
+    def fit_to_scatter(self, trainable, cells=None, maxiter: int = 200) -> None:
+        """Fit ``trainable`` components and the nuisance on
+        :meth:`on_chirp_deviation` and keep the values (a noise model fitted
+        where it is scored: to the whole residual it would widen its variance
+        at the scene misfit and overpredict the scatter)."""
+        dev = self.on_chirp_deviation()
+        if dev is self:
+            self.fit(trainable=trainable, cells=cells, maxiter=maxiter)
+            return
+        dev.fit(trainable=trainable, cells=cells, maxiter=maxiter)
+        self.nuisance.values = dev.nuisance.values
+        for c, d in zip(self.components, dev.components):
+            c.values = d.values
 
     def copy(self) -> "EffectModel":
         """Shallow copy with independent component values (tensors are shared)."""

@@ -164,15 +164,12 @@ def _adopt(model, eff, maxiter, pool=SERIAL):
 
 def _fit_noise_model(model, comp, maxiter) -> None:
     """Fit the variance component ``comp`` to the chirp-to-chirp scatter it
-    was scored on (:meth:`~sionna_mmir.effects.model.EffectModel.on_chirp_deviation`),
+    was scored on (:meth:`~sionna_mmir.effects.model.EffectModel.fit_to_scatter`),
     then refit the mean components and the nuisance beside it held fixed: a
     noise model fitted to the whole residual would widen its variance where
     the scene misfit is instead of where the noise is."""
     k = _position(model, comp)
-    dev = model.on_chirp_deviation()
-    dev.fit(trainable=[k], maxiter=2 * maxiter)
-    comp.values = dev.components[k].values
-    model.nuisance.values = dev.nuisance.values
+    model.fit_to_scatter([k], maxiter=2 * maxiter)
     model.fit(trainable=[i for i in range(len(model.components)) if i != k],
               maxiter=2 * maxiter)
 

@@ -226,12 +226,8 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
     train, base = shared[g][k]
     cand = base.copy()
     cand.add(copy.deepcopy(eff), cells=train)          # fresh state per fold
-    if deviation:              # fitted to the scatter it is scored on
-        work = cand.on_chirp_deviation()
-        _fit_candidate(work, eff, train, maxiter)
-        cand.nuisance.values = work.nuisance.values
-        for c, w in zip(cand.components, work.components):
-            c.values = w.values
+    if deviation:              # a noise model, fitted to the scatter it is scored on
+        cand.fit_to_scatter([len(cand.components) - 1], cells=train, maxiter=maxiter)
     else:
         _fit_candidate(cand, eff, train, maxiter)
     last = cand.components[-1]
