@@ -511,7 +511,7 @@ class EffectModel:
             return ops.item(self.loss(self._tensors(), mask, n))
 
     def nll_profiled(self, cells=None, per_cell: bool = False, by_slot: bool = False,
-                     deviation: bool = False):
+                     deviation: bool = False, split=None):
         """Mean NLL per complex sample over ``cells`` with the white floor
         ``sigma^2`` re-estimated on those cells (the NLL minimised over
         ``sigma^2`` alone, every other parameter as is).
@@ -543,6 +543,12 @@ class EffectModel:
         judging where a noise model helps, ``by_slot``; the scale is not
         corrected, which the profiled floors absorb).  The cells must hold
         every chirp loop of their channels.
+
+        ``split`` (None: :meth:`split_likelihood`): without ``deviation``, the
+        NLL of :meth:`_split_loss`, the chirp mean with its own profiled white
+        floor (each cell carries ``1 / C`` of its channel's) and the deviation
+        under the profiled shaped floor; ``True`` scores a model without a
+        noise shaper on the scale of one with it.
         """
         x, v = self.mean_variance_numpy()
         cells = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
@@ -551,6 +557,14 @@ class EffectModel:
                                   "or selects no cells")
         r = self.Y_numpy - np.fft.fft(x, axis=-1, norm="ortho")
         C = self.ctx.shape[3]
+        split = self.split_likelihood() if split is None else bool(split)
+        mean_cell = 0.0
+        if split and not deviation and C > 1:
+            rm = r.mean(axis=3, keepdims=True)
+            em = np.abs(np.broadcast_to(rm, r.shape)[cells]) ** 2
+            wm = max(float(np.mean(em)), 1e-30)
+            mean_cell = np.mean(em / wm + np.log(wm), axis=-1) / C
+            r = (r - rm) * np.sqrt(C / (C - 1))
         if deviation == "median" and C > 1:
             r = r - (np.median(r.real, axis=3, keepdims=True)
                      + 1j * np.median(r.imag, axis=3, keepdims=True))
@@ -569,6 +583,8 @@ class EffectModel:
             for k in np.unique(slot):
                 sel = slot == k
                 cell_nll[sel] = _profiled_cells(r2[sel], s[sel], extra[sel])
+        if split and not deviation and C > 1:
+            cell_nll = mean_cell + cell_nll * ((C - 1) / C)
         return (float(np.mean(cell_nll)), cell_nll) if per_cell else float(np.mean(cell_nll))
 
     def loss(self, tens, mask, n, frozen=None):
@@ -577,6 +593,8 @@ class EffectModel:
         With a white floor alone (:meth:`_white`) it is computed in the time
         domain, ``sum mask (|y - x|^2 / sigma^2 + log sigma^2) / n``, equal by
         Parseval (the mask holds whole rows): no DFT and its gradient."""
+        if self.split_likelihood():
+            return self._split_loss(tens, mask, n, frozen)
         if self._white():
             x = self._mean(tens, self._order(), frozen)
             dr.eval(x[0], x[1])          # once, as the DFT's input would be
@@ -586,6 +604,45 @@ class EffectModel:
         _, X, v = self._forward(tens, frozen)
         r2 = ops.abs2((self.Y[0] - X[0], self.Y[1] - X[1]))
         return dr.sum((r2 / v + dr.log(v)) * mask, axis=None) / n
+
+    def split_likelihood(self) -> bool:
+        """Whether the NLL is split into the chirp mean and the chirp-to-chirp
+        deviation (:meth:`_split_loss`): with two or more chirp loops and a
+        component that shapes the receiver noise (an IF filter)."""
+        return self.ctx.shape[3] > 1 and bool(self._noise_shapers())
+
+    def _split_loss(self, tens, mask, n, frozen=None):
+        """The NLL of a model whose static misfit is not receiver noise.
+
+        The residual ``R_c = Y_c - X_c`` of chirp loop ``c`` splits into its
+        chirp mean ``Rm`` and the deviation ``D_c = R_c - Rm``.  The receiver
+        noise (variance ``v``: the shaped floor and the variance effects) is
+        all there is in the deviation (``C - 1`` degrees of freedom in ``C``
+        samples); the chirp mean also carries what the mean model leaves
+        unexplained, the same in every chirp (a leakage the separable
+        coupling cannot fit, diffuse clutter the mesh lacks), which is not
+        noise and has no noise shape.  So the mean is scored with its own
+        white variance, profiled (``n_m (log mean |Rm|^2 + 1)``), and the
+        deviation under ``v``::
+
+            nll = [n_m (log mean |Rm|^2 + 1) + sum (|D_c|^2 / v + (C - 1) / C log v)] / n
+
+        (``n_m = n / C`` chirp-mean samples; cells hold every chirp loop of
+        their channels).  Under the plain likelihood a noise notch at
+        near-DC bins makes any static misfit there cost tens of dB more, and
+        a filter's fit drops the notch it is seen by."""
+        C, N = self.ctx.shape[3], self.ctx.shape[4]
+        shape = self.ctx.shape[:3] + (1, N)
+        _, X, v = self._forward(tens, frozen)
+        R = (self.Y[0] - X[0], self.Y[1] - X[1])
+        Rm = tuple(ops.view(dr.sum(r, axis=3), shape) * (1.0 / C) for r in R)
+        w = ops.view(dr.sum(mask, axis=3), shape) * (1.0 / C)       # the channels' 0/1
+        n_m = n / C
+        e_m = dr.sum(ops.abs2(Rm) * w, axis=None) / n_m
+        mean_term = n_m * (dr.log(e_m + 1e-30) + 1.0)
+        D2 = ops.abs2((R[0] - Rm[0], R[1] - Rm[1]))
+        dev_term = dr.sum((D2 / v + ((C - 1) / C) * dr.log(v)) * mask, axis=None)
+        return (mean_term + dev_term) / n
 
     # ----------------------------------------------------------------- fit
     def _rescale_gain(self, cells=None) -> None:

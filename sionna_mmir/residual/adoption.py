@@ -16,7 +16,7 @@ import copy
 import numpy as np
 
 from ..effects.model import Component as _Component, EffectModel
-from .ranking import _averaged_scoring, _mean_only
+from .ranking import _averaged_scoring, _fit_candidate, _mean_only
 from .workers import SERIAL
 
 
@@ -151,6 +151,8 @@ def _adopt(model, eff, maxiter, pool=SERIAL):
     if eff.kind == "variance" and work.ctx.shape[3] > 1:
         _fit_noise_model(work, comp, maxiter)
         return comp
+    if any(c.effect.name in set(eff.may_replace) for c in work.components):
+        _fit_candidate(work, comp.effect, None, 2 * maxiter)     # the path it was scored on
     work.fit(maxiter=2 * maxiter)
     if eff.kind != "variance":      # a noise model only reweights the mean fit
         if work is model and getattr(eff, "shapes_noise", False) and model.can_average() \

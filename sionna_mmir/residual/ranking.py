@@ -117,6 +117,8 @@ def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple
                                          deviation=_slot_deviation(model.ctx.shape[3] > 1))[1]
     if "energy" in needs:
         out["energy"] = base.residual_energy(test)
+    if "split" in needs:
+        out["split"] = base.nll_profiled(test, split=True) * n_test
     return base.nuisance.values, out
 
 
@@ -138,7 +140,19 @@ def _base_needs(model, candidates) -> tuple:
         needs.append("slots")
     if any(e.kind != "variance" for e in candidates):
         needs.append("energy")
+    if any(_split_scored(e, model) for e in candidates):
+        needs.append("split")
     return tuple(needs)
+
+
+def _split_scored(eff, model) -> bool:
+    """Whether ``eff`` added to ``model`` is scored with the split likelihood
+    (:meth:`~sionna_mmir.effects.model.EffectModel.split_likelihood`): a
+    noise-shaping mean effect on two or more chirp loops.  Its base is scored
+    the same way, and its gain is on the chirp average's scale for what it
+    explains in the mean."""
+    return (eff.kind == "mean" and getattr(eff, "shapes_noise", False)
+            and model.ctx.shape[3] > 1)
 
 
 def slot_share(gains: list, tests: list) -> float:
@@ -233,6 +247,7 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
     last = cand.components[-1]
     out = {"nll": cand.nll_profiled(~train, deviation=deviation),
            "n_params": int(last.n_params), "dev": deviation,
+           "split": not deviation and cand.split_likelihood(),
            "floor": float(last.effect.fitted_gain_floor(cand, last.values))}
     if eff.kind == "variance":
         out["slots"] = cand.nll_profiled(~train, True, by_slot=True,
@@ -305,7 +320,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
             fit = fits[((g, i), k)]
             secs += fit["s"]
             floors.append(fit["floor"])
-            nll0 = base["dev"] if fit["dev"] else base["nll"]
+            nll0 = base["dev"] if fit["dev"] else base["split"] if fit["split"] else base["nll"]
             gains.append(nll0 - fit["nll"] * n_test)
             if eff.kind == "variance":
                 cell_gains.append(base["slots"] - fit["slots"])
@@ -365,9 +380,12 @@ class _Tiers:
         misfit well above the noise gains up to ``C`` times more nats on the
         full data).  When the best acceptable candidate was scored on the full
         data and an acceptable chirp-averaged one ranks below it, that one is
-        scored again on the full data and the two are compared there."""
+        scored again on the full data and the two are compared there (not
+        when the best was scored with the split likelihood, whose mean part
+        is on the chirp average's scale already: :func:`_split_scored`)."""
         effects = {c.name: c for c in pool}
-        if self.avg is self.model or _averaged_scoring(effects[best.name]):
+        if self.avg is self.model or _averaged_scoring(effects[best.name]) \
+                or _split_scored(effects[best.name], self.model):
             return ranking, best
         rival = next((c for c in ranking if ok(c) and _averaged_scoring(effects[c.name])), None)
         if rival is None:

@@ -289,6 +289,10 @@ class Coupling(Effect):
             g = ops.cmul(g, b)
         return ops.cmul(g, tone)
 
+    def silenced(self, values):
+        """The leakage with zero amplitude (its delays and channel factors kept)."""
+        return {**values, "amp": np.zeros_like(np.asarray(values["amp"]))}
+
     def summary(self, p, ctx):
         tau = np.asarray(p["delay"], np.float64) * NS
         A = _cplx(p["amp"]) * np.exp(-2j * np.pi * ctx.radar.center_frequency * tau)
