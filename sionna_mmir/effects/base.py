@@ -95,9 +95,10 @@ class Effect:
     #: place in the chain where it differs from ``stage`` (None: ``stage``);
     #: effects are applied in ``(chain_order or stage)`` order
     chain_order = None
-    #: names of effects this one may make redundant: its data-driven start
-    #: sees the model without them, and the residual loop refits them beside
-    #: it when it is scored
+    #: names of effects this one may make redundant or re-explain (a mover
+    #: beside ego motion, a leakage behind an IF filter): its data-driven
+    #: start sees the model without them, and the residual loop refits them
+    #: from silence beside it when it is scored and adopted
     may_replace = ()
     #: applying it commutes with averaging over chirp loops and its parameters
     #: mean the same on averaged data (a static, linear effect); the residual

@@ -187,10 +187,12 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     An effect that may make adopted ones redundant (``eff.may_replace``, e.g.
     ego motion beside movers: a mover adopted first may be a static object
     seen from the moving radar, and ego motion scored with it held fixed
-    would show that object twice) is fitted alone with those silenced
-    (:meth:`~sionna_mmir.effects.base.Effect.silenced`), then with every
-    component, so the object's amplitude can move back from the mover to
-    the scene."""
+    would show that object twice; an IF filter beside an adopted leakage,
+    which was fitted to what the filter leaves of it) is fitted alone with
+    those silenced (:meth:`~sionna_mmir.effects.base.Effect.silenced`), then
+    with every component, so the object's amplitude can move back from the
+    mover to the scene and the leakage regrow behind the filter.  The
+    adoption fits it the same way."""
     new = len(cand.components) - 1
     names = set(eff.may_replace)
     replaced = [c for c in cand.components[:new] if c.effect.name in names]
