@@ -164,6 +164,13 @@ def test_08_slot_share_counts_the_transmit_slots_that_gain():
     assert slot_share([gains], [test]) == pytest.approx(0.5)
     assert slot_share([np.abs(gains)], [test]) == pytest.approx(1.0)
     assert slot_share([gains[:2]], [np.zeros((1, 1, 1, 2), bool) | True]) == 1.0   # < 4 slots
+    # "most" slots: two standard deviations of a coin toss above one half
+    from sionna_mmir.residual.ranking import required_slot_share
+
+    assert required_slot_share(24) == pytest.approx(0.5 + 1 / np.sqrt(24))
+    assert 12 / 24 < required_slot_share(24) < 17 / 24
+    assert required_slot_share(192) == pytest.approx(0.572, abs=1e-3)
+    assert required_slot_share(4) == 1.0
 
 
 def test_09_a_noise_floor_is_not_adopted_for_a_burst_in_a_few_chirps():
@@ -620,7 +627,7 @@ def test_20_a_mean_candidate_must_lower_the_held_out_residual_energy():
     from sionna_mmir.residual.ranking import CandidateScore, _rank_round, rank_candidates
 
     class Tiers:
-        model = type("M", (), {"ctx": None})()
+        model = type("M", (), {"ctx": type("X", (), {"shape": (1, 3, 4, 8, 64)})()})()
 
         def __init__(self, scores):
             self.scores = scores

@@ -45,7 +45,7 @@ deviation alone (the scatter a stationary noise model predicts; the
 chirp-mean misfit is the mean model's to explain: a noise model fitted to
 it would widen its variance there and overpredict the scatter), and
 only when they help in most transmit slots (frame, Tx, chirp; in TDM-MIMO
-every Tx fires in its own slot) (:data:`~.ranking.MIN_SLOT_SHARE`):
+every Tx fires in its own slot) (:func:`~.ranking.required_slot_share`):
 a stationary noise model that gains in a few chirps only is absorbing a
 localised disturbance (interference, a burst), which is reported as
 unexplained instead.  Of two sensor effects that explain nearly the same,

@@ -416,9 +416,19 @@ def _mean_only(eff) -> bool:
     return eff.kind != "variance" and not getattr(eff, "shapes_noise", False)
 
 
-#: a variance effect must lower the held-out NLL in at least this share of the
-#: transmit slots (:func:`slot_share`): it models stationary noise
+#: a variance effect must lower the held-out NLL in more of the transmit
+#: slots (:func:`slot_share`) than this share by two standard deviations of a
+#: coin toss (:func:`required_slot_share`): it models stationary noise
 MIN_SLOT_SHARE = 0.5
+
+
+def required_slot_share(n_slots: int) -> float:
+    """Least slot share of an acceptable variance effect over ``n_slots``
+    transmit slots: :data:`MIN_SLOT_SHARE` plus two standard deviations of
+    the share a coin toss per slot would give (``0.5 / sqrt(n)``), so a noise
+    model that helps in half the slots, as a disturbance confined to some
+    of them lets it, is not "most" (24 slots: 0.70; 192: 0.57)."""
+    return min(1.0, MIN_SLOT_SHARE + 1.0 / np.sqrt(max(int(n_slots), 1)))
 
 #: a sensor effect is adopted only when its held-out gain exceeds every
 #: acceptable scene-side candidate's by more than this share (:func:`_scene_first`)
@@ -488,7 +498,8 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
 
     def ok(c):
         variance = kinds_of.get(c.name) == "variance"
-        stationary = not variance or c.slot_share >= MIN_SLOT_SHARE
+        stationary = not variance or c.slot_share >= required_slot_share(
+            int(np.prod(tiers.model.ctx.shape[:4])) // tiers.model.ctx.shape[2])
         predicts_mean = c.name not in mean_only or c.energy_change_db <= 0.0
         least = max(floor.get(c.name, min_gain), c.gain_floor)
         return (c.score > 0 and c.gain_per_sample >= least and stationary
