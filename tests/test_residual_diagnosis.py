@@ -712,3 +712,47 @@ def test_21_an_adoption_whose_joint_refit_worsens_the_mean_is_undone():
     assert run.model.residual_energy() < before
     assert [c.effect.name for c in run.model.components] == ["channel_gain"]
     assert run.result().settings["vetoed"] == run.vetoes
+
+
+def test_21b_an_adoption_whose_refit_needs_a_higher_floor_is_undone():
+    """An effect whose joint refit shows it to need a higher gain floor than
+    the held-out gain per sample its candidate showed (a mover whose fold
+    fits moved but whose refit comes to rest: a scatterer) is undone and
+    vetoed, and the reason is reported; the next candidate is adopted.  The
+    refit's floor is forced here; the rule for movers at rest is
+    ``test_effects_scene::test_20e``."""
+    from sionna_mmir.pipeline.report import _veto_reason
+    from sionna_mmir.residual import diagnosis as dg
+    from sionna_mmir.residual.diagnosis import DiagnosisRun
+
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    extra = synthesize_adc(radar, np.array([0.5]), np.array([2 * 2.6 / C]))[None]
+    g = np.random.default_rng(7)
+    gains = 1 + 0.5 * (g.normal(size=(3, 1)) + 1j * g.normal(size=(1, 4)))
+    y = (clean + extra) * gains[None, :, :, None, None] + _noise(clean.shape, 0.01, 8)
+    refitted = []
+    real_adopt = dg._adopt
+
+    def adopt(model, eff, maxiter, fits):
+        comp = real_adopt(model, eff, maxiter, fits)
+        refitted.append(eff.name)
+        return comp
+
+    point = MissingScatterer()
+    mp = pytest.MonkeyPatch()
+    mp.setattr(dg, "_adopt", adopt)
+    mp.setattr(point, "fitted_gain_floor",
+               lambda model, values: 10.0 if refitted else point.gain_floor(model.ctx))
+    try:
+        run = DiagnosisRun(EffectModel(ctx, y, clean), [point, ChannelGain()])
+        a = run.step()
+    finally:
+        mp.undo()
+    assert refitted[0] == "missing_scatterer" and a.name == "channel_gain"
+    (v,) = run.vetoes
+    assert v["name"] == "missing_scatterer" and v["gain_floor"][1] == 10.0
+    assert 0 < v["gain_floor"][0] < 10.0
+    assert "needs 10.000 nats" in _veto_reason(v)
+    assert [c.effect.name for c in run.model.components] == ["channel_gain"]

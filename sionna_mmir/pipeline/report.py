@@ -23,8 +23,10 @@
 ``stop_reason``
     why the diagnosis ended
 ``vetoed``
-    adoptions undone because their joint refit raised the residual energy
-    (``round``, ``name``, ``residual_energy_db`` before and after)
+    adoptions undone (``round``, ``name``) because their joint refit raised
+    the residual energy (``residual_energy_db`` before and after) or came to
+    need a higher gain floor than the held-out gain per sample the
+    candidate had shown (``gain_floor``: gain, floor; a mover at rest)
 ``timings``
     seconds per stage
 
@@ -93,6 +95,16 @@ def _row(name, m):
     return f"| {name} | " + " | ".join(f"{m[k]:.4g}" for k in METRICS) + " |"
 
 
+def _veto_reason(v: dict) -> str:
+    """Why an adoption was undone, in words (a ``report.json: vetoed`` entry)."""
+    if "gain_floor" in v:
+        got, floor = v["gain_floor"]
+        return (f"its refit moves as the static scene does and needs {floor:.3f} nats per "
+                f"held-out sample; it gained {got:.3f}")
+    return (f"its joint refit took the residual from {v['residual_energy_db'][0]:.2f} to "
+            f"{v['residual_energy_db'][1]:.2f} dB")
+
+
 def loop_markdown(doc: dict) -> str:
     """``report.md``: the error before and after every adoption, and what is left."""
     head = "| model | " + " | ".join(METRICS) + " |\n|---|" + "---|" * len(METRICS)
@@ -100,8 +112,7 @@ def loop_markdown(doc: dict) -> str:
          f"Radar {doc['radar']}; scene: {doc['scene']} ({', '.join(doc['objects'])}).", "",
          "## Error before and after", "", head, _row("first (scene refined)", doc["first"])]
     L += [_row(f"+ {a['name']} ({a['side']})", a["after"]) for a in doc["adoptions"]]
-    L += [f"- vetoed {v['name']} in round {v['round'] + 1}: its joint refit took the residual "
-          f"from {v['residual_energy_db'][0]:.2f} to {v['residual_energy_db'][1]:.2f} dB"
+    L += [f"- vetoed {v['name']} in round {v['round'] + 1}: {_veto_reason(v)}"
           for v in doc["vetoed"]]
     L += ["", f"Stopped: {doc['stop_reason']}.", "",
           f"Sensor effects adopted: {', '.join(doc['sensor_effects']) or 'none'}.", "",

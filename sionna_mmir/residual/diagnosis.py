@@ -195,7 +195,7 @@ class DiagnosisRun:
             eff = next(c for c in self.pool if c.name == best.name)
             before, res_before = self.current, self.model.residual()
             t0 = time.perf_counter()
-            comp = self._adopt_or_undo(eff)
+            comp = self._adopt_or_undo(eff, best)
             secs["adopt"] += time.perf_counter() - t0
             if comp is not None:
                 break
@@ -212,17 +212,26 @@ class DiagnosisRun:
             self.progress("adopted", eff.name)
         return a
 
-    def _adopt_or_undo(self, eff):
+    def _adopt_or_undo(self, eff, score):
         """Adopt ``eff`` (:func:`~.adoption._adopt`); undo it and return None when the
-        joint refit made the mean model worse (:func:`~.adoption._mean_worse`)."""
+        joint refit made the mean model worse (:func:`~.adoption._mean_worse`)
+        or showed it to need a higher gain floor than its held-out gain per
+        sample (``score``, its :class:`~.ranking.CandidateScore`): a mover
+        whose fold fits moved but whose refit comes to rest beside the static
+        scene is a scatterer, held to a scatterer's floor
+        (:meth:`~sionna_mmir.effects.base.Effect.fitted_gain_floor`)."""
         before, saved = self.current, self.model.copy()
         comp = _adopt(self.model, eff, self.maxiter, self.fits)
         self.current = _current_metrics(self.model)
-        if not _mean_worse(eff, before, self.current):
+        floor = float(comp.effect.fitted_gain_floor(self.model, comp.values))
+        if _mean_worse(eff, before, self.current):
+            why = {"residual_energy_db": [before["residual_energy_db"],
+                                          self.current["residual_energy_db"]]}
+        elif score.gain_per_sample < floor:
+            why = {"gain_floor": [score.gain_per_sample, floor]}
+        else:
             return comp
-        self.vetoes.append({"round": len(self.adoptions), "name": eff.name,
-                            "residual_energy_db": [before["residual_energy_db"],
-                                                   self.current["residual_energy_db"]]})
+        self.vetoes.append({"round": len(self.adoptions), "name": eff.name, **why})
         self.model.components, self.model.nuisance = saved.components, saved.nuisance
         self.current = before
         if self.progress is not None:
@@ -252,7 +261,7 @@ class DiagnosisRun:
 def _stop_reason(vetoed) -> str:
     why = "no candidate improves the held-out likelihood and the held-out residual energy"
     if vetoed:
-        why += f" (vetoed after a worse joint refit: {', '.join(sorted(vetoed))})"
+        why += f" (vetoed after their joint refit: {', '.join(sorted(vetoed))})"
     return why
 
 
