@@ -672,6 +672,18 @@ def test_20_a_mean_candidate_must_lower_the_held_out_residual_energy():
     assert c.gain > 0 and c.energy_change_db < -3.0, c
 
 
+def _point_behind_gains():
+    """``(ctx, clean, y)``: a point the scene lacks and per-channel gains
+    (AWR1843, two chirp loops)."""
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    clean = _clean(radar)
+    extra = synthesize_adc(radar, np.array([0.5]), np.array([2 * 2.6 / C]))[None]
+    g = np.random.default_rng(7)
+    gains = 1 + 0.5 * (g.normal(size=(3, 1)) + 1j * g.normal(size=(1, 4)))
+    y = (clean + extra) * gains[None, :, :, None, None] + _noise(clean.shape, 0.01, 8)
+    return EffectContext(radar), clean, y
+
+
 def test_21_an_adoption_whose_joint_refit_worsens_the_mean_is_undone():
     """When the joint refit after an adoption raises the residual energy, the
     model goes back to its state before the adoption, the effect is vetoed
@@ -680,13 +692,7 @@ def test_21_an_adoption_whose_joint_refit_worsens_the_mean_is_undone():
     from sionna_mmir.residual import diagnosis as dg
     from sionna_mmir.residual.diagnosis import DiagnosisRun
 
-    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
-    ctx = EffectContext(radar)
-    clean = _clean(radar)
-    extra = synthesize_adc(radar, np.array([0.5]), np.array([2 * 2.6 / C]))[None]
-    g = np.random.default_rng(7)
-    gains = 1 + 0.5 * (g.normal(size=(3, 1)) + 1j * g.normal(size=(1, 4)))
-    y = (clean + extra) * gains[None, :, :, None, None] + _noise(clean.shape, 0.01, 8)
+    ctx, clean, y = _point_behind_gains()
     real_adopt, events = dg._adopt, []
 
     def overshooting(model, eff, maxiter, fits):
@@ -725,13 +731,7 @@ def test_21b_an_adoption_whose_refit_needs_a_higher_floor_is_undone():
     from sionna_mmir.residual import diagnosis as dg
     from sionna_mmir.residual.diagnosis import DiagnosisRun
 
-    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
-    ctx = EffectContext(radar)
-    clean = _clean(radar)
-    extra = synthesize_adc(radar, np.array([0.5]), np.array([2 * 2.6 / C]))[None]
-    g = np.random.default_rng(7)
-    gains = 1 + 0.5 * (g.normal(size=(3, 1)) + 1j * g.normal(size=(1, 4)))
-    y = (clean + extra) * gains[None, :, :, None, None] + _noise(clean.shape, 0.01, 8)
+    ctx, clean, y = _point_behind_gains()
     refitted = []
     real_adopt = dg._adopt
 
