@@ -577,6 +577,35 @@ def test_17_candidates_of_the_two_tiers_are_compared_on_the_full_data():
                               1.0, 150, None) == ([split, avg], split)
 
 
+def test_17b_candidates_beside_an_adopted_noise_shaper_are_scored_split():
+    """Once an IF filter is in the model its likelihood is split (chirp mean,
+    chirp deviation): a mover scored beside it is compared with the base on
+    that likelihood, and the IF filter as a candidate on a model without one
+    with its base scored split too (truth: the planted walker)."""
+    from helpers import direct_adc, point_target_delays
+    from sionna_mmir.effects.library.if_filter import IFFilter
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.effects.library.scatterer import unit_vectors
+    from sionna_mmir.residual.ranking import rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=8, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    walker = direct_adc(radar, 0.2, point_target_delays(radar, 3.1 * unit_vectors(20.0)),
+                        2 * 1.2 / C)[None]
+    y = clean + walker + _noise(clean.shape, 0.01, 5)
+    folds = cv_folds(ctx.shape[:4], 3)
+    m = EffectModel(ctx, y, clean)
+    m.fit(trainable=[])
+    (shaper,) = rank_candidates(m, [IFFilter()], folds, maxiter=20)
+    assert np.isfinite(shaper.gain)
+    m.add(IFFilter())
+    m.fit(maxiter=20)
+    assert m.split_likelihood()
+    (mover,) = rank_candidates(m, [MovingScatterer()], folds, maxiter=40)
+    assert mover.gain > 100, mover
+
+
 def test_18_the_default_penalty_grows_with_the_held_out_samples():
     """The score charges ``ln(n) / 2`` nats per parameter (the BIC's weight; n
     the held-out complex samples the candidate was scored on), a fixed number

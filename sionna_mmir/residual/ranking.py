@@ -312,6 +312,19 @@ def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SER
             for g, (_, cands, _) in enumerate(groups)]
 
 
+def _base_nll(base: dict, fit: dict) -> float:
+    """The fold base's held-out NLL a candidate's is compared with: on the
+    chirp-to-chirp deviation for a noise model, with the split likelihood
+    for a candidate scored with it (a noise shaper added to a model without
+    one: ``base["split"]``; a base with a noise shaper is split already),
+    else the plain one."""
+    if fit["dev"]:
+        return base["dev"]
+    if fit["split"] and "split" in base:
+        return base["split"]
+    return base["nll"]
+
+
 def _scores(g, candidates, bases, fits, penalty) -> list:
     """The :class:`CandidateScore` of every candidate of group ``g``, best first."""
     out = []
@@ -322,7 +335,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
             fit = fits[((g, i), k)]
             secs += fit["s"]
             floors.append(fit["floor"])
-            nll0 = base["dev"] if fit["dev"] else base["split"] if fit["split"] else base["nll"]
+            nll0 = _base_nll(base, fit)
             gains.append(nll0 - fit["nll"] * n_test)
             if eff.kind == "variance":
                 cell_gains.append(base["slots"] - fit["slots"])
