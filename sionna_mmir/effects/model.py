@@ -547,7 +547,7 @@ class EffectModel:
         ``split`` (None: :meth:`split_likelihood`): without ``deviation``, the
         NLL of :meth:`_split_loss`, the chirp mean with its own profiled white
         floor (each cell carries ``1 / C`` of its channel's) and the deviation
-        under the profiled shaped floor; ``True`` scores a model without a
+        under the profiled shaped floor on :meth:`noise_bins`; ``True`` scores a model without a
         noise shaper on the scale of one with it.
         """
         x, v = self.mean_variance_numpy()
@@ -574,6 +574,10 @@ class EffectModel:
         s = np.broadcast_to(self.white_shape_numpy(), v.shape)
         extra = (v - float(np.exp(self.nuisance.values["log_noise"][0])) * s)[cells]
         s = s[cells]
+        kept = 1.0
+        if split and not deviation and C > 1:
+            keep = self.noise_bins()
+            r2, s, extra, kept = r2[:, keep], s[:, keep], extra[:, keep], keep.mean()
         if not by_slot:
             cell_nll = _profiled_cells(r2, s, extra)
         else:
@@ -584,7 +588,7 @@ class EffectModel:
                 sel = slot == k
                 cell_nll[sel] = _profiled_cells(r2[sel], s[sel], extra[sel])
         if split and not deviation and C > 1:
-            cell_nll = mean_cell + cell_nll * ((C - 1) / C)
+            cell_nll = mean_cell + cell_nll * ((C - 1) / C * kept)
         return (float(np.mean(cell_nll)), cell_nll) if per_cell else float(np.mean(cell_nll))
 
     def loss(self, tens, mask, n, frozen=None):
@@ -611,6 +615,24 @@ class EffectModel:
         component that shapes the receiver noise (an IF filter)."""
         return self.ctx.shape[3] > 1 and bool(self._noise_shapers())
 
+    def noise_bins(self) -> np.ndarray:
+        """``[N]`` bool: the range bins whose chirp-to-chirp scatter in the
+        data is receiver noise alone (:func:`~.library._sensor_common.noise_bins`;
+        all with one chirp loop).  The split likelihood's deviation term is
+        taken over these: a mover's or a drooping target's bins would
+        otherwise inflate the floor a noise shape is judged against."""
+        if getattr(self, "_noise_bins", None) is None:
+            from .library._sensor_common import chirp_deviation, noise_bins
+
+            dev = chirp_deviation(self.y)
+            if dev is None:
+                self._noise_bins = np.ones(self.ctx.shape[-1], bool)
+            else:
+                P = np.mean(np.abs(np.fft.fft(dev, axis=-1, norm="ortho")) ** 2,
+                            axis=(0, 1, 2, 3))
+                self._noise_bins = noise_bins(P)
+        return self._noise_bins
+
     def _split_loss(self, tens, mask, n, frozen=None):
         """The NLL of a model whose static misfit is not receiver noise.
 
@@ -628,7 +650,7 @@ class EffectModel:
             nll = [n_m (log mean |Rm|^2 + 1) + sum (|D_c|^2 / v + (C - 1) / C log v)] / n
 
         (``n_m = n / C`` chirp-mean samples; cells hold every chirp loop of
-        their channels).  Under the plain likelihood a noise notch at
+        their channels; the deviation's sum over :meth:`noise_bins`).  Under the plain likelihood a noise notch at
         near-DC bins makes any static misfit there cost tens of dB more, and
         a filter's fit drops the notch it is seen by."""
         C, N = self.ctx.shape[3], self.ctx.shape[4]
@@ -641,7 +663,8 @@ class EffectModel:
         e_m = dr.sum(ops.abs2(Rm) * w, axis=None) / n_m
         mean_term = n_m * (dr.log(e_m + 1e-30) + 1.0)
         D2 = ops.abs2((R[0] - Rm[0], R[1] - Rm[1]))
-        dev_term = dr.sum((D2 / v + ((C - 1) / C) * dr.log(v)) * mask, axis=None)
+        keep = ops.tensor(self.noise_bins().astype(np.float64).reshape(1, 1, 1, 1, N))
+        dev_term = dr.sum((D2 / v + ((C - 1) / C) * dr.log(v)) * mask * keep, axis=None)
         return (mean_term + dev_term) / n
 
     # ----------------------------------------------------------------- fit

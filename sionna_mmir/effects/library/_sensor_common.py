@@ -463,6 +463,22 @@ def seen_chirp_mean(x: np.ndarray) -> np.ndarray:
     return x.sum(axis=3, keepdims=True) / np.maximum(seen.sum(axis=3, keepdims=True), 1)
 
 
+#: a range bin whose chirp-to-chirp scatter exceeds the median bin's by this
+#: factor carries a chirp-varying signal, not receiver noise (:func:`noise_bins`)
+SCATTER_OUTLIER = 3.0
+
+
+def noise_bins(power: np.ndarray) -> np.ndarray:
+    """Which range bins of a chirp-to-chirp scatter spectrum ``power [N]`` hold
+    receiver noise alone: those at most :data:`SCATTER_OUTLIER` times the
+    median bin.  A mover, a drooping or ego-moving scene leaves its range bins
+    far above the rest; judged with them, a noise shape that is lower
+    anywhere else (a high-pass notch at near-DC bins) gains from the floor
+    they inflate, whatever the receiver does."""
+    power = np.asarray(power, float)
+    return power <= SCATTER_OUTLIER * np.median(power)
+
+
 def chirp_deviation(x: np.ndarray) -> np.ndarray | None:
     """Deviation of each chirp of ``x [F, T, R, C, N]`` from the chirp mean, scaled
     by ``sqrt(C / (C - 1))`` so white noise keeps its power (held-out, all-zero

@@ -101,7 +101,8 @@ from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
 from ._sensor_common import (LN10, RowExtension, band_frequencies, check_float, const,
-                             check_int, chirp_deviation, last_axis, scalar, seen_chirp_mean)
+                             check_int, chirp_deviation, last_axis, noise_bins, scalar,
+                             seen_chirp_mean)
 
 dr = ops.dr
 KHZ = 1e3
@@ -369,16 +370,23 @@ class IFFilter(Effect):
         return float(np.log(max(float(np.mean(_bin_power(residual))), 1e-300)) + 1.0)
 
     def _shape_nll(self, ctx, residual, st) -> float:
+        """Mean NLL per sample of the chirp-to-chirp scatter ``residual`` under
+        the profiled shaped floor, on the bins of receiver noise alone
+        (:func:`~._sensor_common.noise_bins`)."""
         P = _bin_power(residual)
-        s = self._noise_shape(ctx, st)
+        keep = noise_bins(P)
+        P, s = P[keep], self._noise_shape(ctx, st)[keep]
         s2 = max(float(np.mean(P / s)), 1e-300)
         return float(np.log(s2) + 1.0 + np.mean(np.log(s)))
 
     def _noise_init(self, ctx, residual, hp_pairs, lps) -> "_Start":
         """Best corners and ``rho`` for the residual's power spectrum over the
         given high-pass pairs ``(log f_hp, log f_hp2)``, low-pass corners and
-        ``rho`` in 0, 0.05, ..., 1 (settled)."""
+        ``rho`` in 0, 0.05, ..., 1 (settled), on the bins of receiver noise
+        alone (:func:`~._sensor_common.noise_bins`)."""
         P = _bin_power(residual)
+        keep = noise_bins(P)
+        P = P[keep]
         r = ctx.radar
         f, bin_hz = band_frequencies(ctx, -0.5), r.sample_rate / r.num_samples
         rho = np.linspace(0.0, 1.0, 21)[:, None]
@@ -389,7 +397,7 @@ class IFFilter(Effect):
                 st = _Start(float(hp), float(hp2), float(lp), 1.0, 1.0)
                 c = self._corners(st)
                 shaped = noise_gain_numpy(f, c["f_hp"], c["f_lp"], self.lowpass_order, bin_hz,
-                                          1.0, c["f_hp2"])
+                                          1.0, c["f_hp2"])[keep]
                 s = rho * shaped[None] + (1.0 - rho)                        # [rho, N]
                 nll = (np.log(np.maximum(np.mean(P / s, axis=1), 1e-300))
                        + np.mean(np.log(s), axis=1))
