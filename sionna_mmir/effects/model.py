@@ -547,8 +547,8 @@ class EffectModel:
         ``split`` (None: :meth:`split_likelihood`): without ``deviation``, the
         NLL of :meth:`_split_loss`, the chirp mean with its own profiled white
         floor (each cell carries ``1 / C`` of its channel's) and the deviation
-        under the profiled shaped floor on :meth:`noise_bins`; ``True`` scores a model without a
-        noise shaper on the scale of one with it.
+        under the profiled shaped floor on :meth:`noise_bins`; ``True`` scores
+        a model without a noise shaper on the scale of one with it.
         """
         x, v = self.mean_variance_numpy()
         cells = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
@@ -650,9 +650,10 @@ class EffectModel:
             nll = [n_m (log mean |Rm|^2 + 1) + sum (|D_c|^2 / v + (C - 1) / C log v)] / n
 
         (``n_m = n / C`` chirp-mean samples; cells hold every chirp loop of
-        their channels; the deviation's sum over :meth:`noise_bins`).  Under the plain likelihood a noise notch at
-        near-DC bins makes any static misfit there cost tens of dB more, and
-        a filter's fit drops the notch it is seen by."""
+        their channels; the deviation summed over :meth:`noise_bins`).  Under
+        the plain likelihood a noise notch at near-DC bins makes any static
+        misfit there cost tens of dB more, and a filter's fit drops the notch
+        it is seen by."""
         C, N = self.ctx.shape[3], self.ctx.shape[4]
         shape = self.ctx.shape[:3] + (1, N)
         _, X, v = self._forward(tens, frozen)
