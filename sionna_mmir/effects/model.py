@@ -622,15 +622,11 @@ class EffectModel:
         taken over these: a mover's or a drooping target's bins would
         otherwise inflate the floor a noise shape is judged against."""
         if getattr(self, "_noise_bins", None) is None:
-            from .library._sensor_common import chirp_deviation, noise_bins
+            from .library._sensor_common import bin_power, chirp_deviation, noise_bins
 
             dev = chirp_deviation(self.y)
-            if dev is None:
-                self._noise_bins = np.ones(self.ctx.shape[-1], bool)
-            else:
-                P = np.mean(np.abs(np.fft.fft(dev, axis=-1, norm="ortho")) ** 2,
-                            axis=(0, 1, 2, 3))
-                self._noise_bins = noise_bins(P)
+            self._noise_bins = (np.ones(self.ctx.shape[-1], bool) if dev is None
+                                else noise_bins(bin_power(dev)))
         return self._noise_bins
 
     def _split_loss(self, tens, mask, n, frozen=None):

@@ -463,6 +463,15 @@ def seen_chirp_mean(x: np.ndarray) -> np.ndarray:
     return x.sum(axis=3, keepdims=True) / np.maximum(seen.sum(axis=3, keepdims=True), 1)
 
 
+def bin_power(residual: np.ndarray) -> np.ndarray:
+    """Mean power per range bin (unitary DFT) of ``residual [..., N]`` over the
+    rows that are not all zero, ``[N]``."""
+    R = np.fft.fft(residual.reshape(-1, residual.shape[-1]), axis=-1, norm="ortho")
+    P = np.abs(R) ** 2
+    keep = P.sum(axis=-1) > 0
+    return np.maximum(P[keep].mean(axis=0) if keep.any() else P.mean(axis=0), 1e-300)
+
+
 #: a range bin whose chirp-to-chirp scatter exceeds the median bin's by this
 #: factor carries a chirp-varying signal, not receiver noise (:func:`noise_bins`)
 SCATTER_OUTLIER = 3.0

@@ -101,19 +101,11 @@ from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
 from ._sensor_common import (LN10, RowExtension, band_frequencies, check_float, const,
-                             check_int, chirp_deviation, last_axis, noise_bins, scalar,
-                             seen_chirp_mean)
+                             bin_power, check_int, chirp_deviation, last_axis, noise_bins,
+                             scalar, seen_chirp_mean)
 
 dr = ops.dr
 KHZ = 1e3
-
-
-def _bin_power(residual: np.ndarray) -> np.ndarray:
-    """Mean power per range bin (unitary DFT) over the cells that are not all zero, ``[N]``."""
-    R = np.fft.fft(residual.reshape(-1, residual.shape[-1]), axis=-1, norm="ortho")
-    P = np.abs(R) ** 2
-    keep = P.sum(axis=-1) > 0
-    return np.maximum(P[keep].mean(axis=0) if keep.any() else P.mean(axis=0), 1e-300)
 
 
 def butterworth_poles(order: int) -> np.ndarray:
@@ -173,6 +165,16 @@ def periodogram_matrix(n: int, q: int = PERIODOGRAM_OVERSAMPLING) -> tuple:
 
 
 _PERIODOGRAM: dict = {}
+_PERIODOGRAM_TENSOR: dict = {}
+
+
+def _periodogram_tensor(n: int):
+    """:func:`periodogram_matrix`'s ``M`` as a Dr.Jit tensor, made once per ``n``
+    (it enters every evaluation of :meth:`IFFilter.noise_gain`)."""
+    if n not in _PERIODOGRAM_TENSOR:
+        M = periodogram_matrix(n)[1]
+        _PERIODOGRAM_TENSOR[n] = const(M, M.shape)
+    return _PERIODOGRAM_TENSOR[n]
 
 
 def noise_psd_numpy(nu, f_hp, f_lp, order: int, bin_hz, f_hp2=None) -> np.ndarray:
@@ -367,13 +369,13 @@ class IFFilter(Effect):
         """Mean NLL per sample under a profiled white floor (cells that are all
         zero left out): the chirp mean's share of the split likelihood
         (:meth:`~sionna_mmir.effects.model.EffectModel.split_likelihood`)."""
-        return float(np.log(max(float(np.mean(_bin_power(residual))), 1e-300)) + 1.0)
+        return float(np.log(max(float(np.mean(bin_power(residual))), 1e-300)) + 1.0)
 
     def _shape_nll(self, ctx, residual, st) -> float:
         """Mean NLL per sample of the chirp-to-chirp scatter ``residual`` under
         the profiled shaped floor, on the bins of receiver noise alone
         (:func:`~._sensor_common.noise_bins`)."""
-        P = _bin_power(residual)
+        P = bin_power(residual)
         keep = noise_bins(P)
         P, s = P[keep], self._noise_shape(ctx, st)[keep]
         s2 = max(float(np.mean(P / s)), 1e-300)
@@ -384,7 +386,7 @@ class IFFilter(Effect):
         given high-pass pairs ``(log f_hp, log f_hp2)``, low-pass corners and
         ``rho`` in 0, 0.05, ..., 1 (settled), on the bins of receiver noise
         alone (:func:`~._sensor_common.noise_bins`)."""
-        P = _bin_power(residual)
+        P = bin_power(residual)
         keep = noise_bins(P)
         P = P[keep]
         r = ctx.radar
@@ -507,7 +509,7 @@ class IFFilter(Effect):
         for corner in self._highpass_corners(p):
             fc = dr.exp(LN10 * corner)
             psd = psd * (f * f) / (f * f + fc * fc)
-        e = dr.sum(const(M, (N, L)) * psd, axis=1)                          # [N]
+        e = dr.sum(_periodogram_tensor(N) * psd, axis=1)                    # [N]
         rho = scalar(p["pre_noise"], 0)
         return ops.view(rho * e + (1.0 - rho), (1, 1, 1, 1, N))
 
