@@ -596,6 +596,46 @@ def test_21_adc_clipping_recovered():
     assert _residual_power(m) < 1.2 * sigma2
 
 
+def test_21b_adc_clipping_of_a_static_scene_is_fitted_on_the_chirp_average():
+    """Each chirp of a static scene is clipped on its own (after its own
+    noise, as an ADC does); the clip's input is then the same in every chirp,
+    so the clipping commutes with the chirp average and is fitted there, at
+    ``1 / C`` of the work: the averaged model's mean is the full model's
+    averaged, and the level fitted on the average is the planted one (truth:
+    ``np.clip`` of the direct synthesis at the planted level).  Behind a
+    mover the clip's input changes from chirp to chirp and nothing averages."""
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.residual.ranking import _averaged_scoring
+
+    radar, _, clean = _scene(num_chirps=8)
+    a = 1.0
+    noisy = clean + _noise(clean.shape, 0.01, 21)
+    meas = np.clip(noisy.real, -a, a) + 1j * np.clip(noisy.imag, -a, a)
+    assert np.mean(np.abs(clean.real) > a) > 0.05
+    ctx = EffectContext(radar)
+    m = EffectModel(ctx, meas, clean)
+    assert _averaged_scoring(ADCClipping(), m)
+    comp = m.add(ADCClipping())
+    assert m.static_flags() == [True] and m.can_average()
+    avg = m.chirp_averaged()                  # no component held fixed
+    assert avg.ctx.shape[3] == 1
+    np.testing.assert_allclose(avg.mean_variance_numpy()[0],
+                               m.mean_variance_numpy()[0].mean(axis=3, keepdims=True),
+                               atol=1e-5 * np.abs(avg.y).max())
+    avg.fit()
+    assert float(np.exp(avg.components[0].values["log_a"][0]) * m.scale) \
+        == pytest.approx(a, rel=0.02)
+    # behind a chirp-varying mean effect the clip does not average
+    moving = m.copy()
+    moving.components = []
+    moving.add(MovingScatterer())
+    assert not _averaged_scoring(ADCClipping(), moving)
+    moving.components.append(comp.copy())
+    assert moving.static_flags() == [False, False] and not moving.can_average()
+    with pytest.raises(Exception, match="adc_clipping"):
+        moving.chirp_averaged(freeze=True)
+
+
 # ============================================================= noise floor
 NF_LEVEL_DB = np.array([-20.0, -17.0, -23.0, -19.0])
 NF_KNEE, NF_GAMMA, NF_LP = 150e3, 1.0, 1.0e6

@@ -546,14 +546,14 @@ def test_16_ego_motion_is_scored_beside_a_mover_it_makes_redundant():
 def test_17_candidates_of_the_two_tiers_are_compared_on_the_full_data():
     """A static point the scene lacks, 16 chirp loops: scored on the chirp
     average its held-out gain is some nats; a candidate scored on every chirp
-    (here a stand-in ADC clipping credited with twice that) would outrank it
+    (here a stand-in ego motion credited with twice that) would outrank it
     on the mixed scale.  ``_Tiers.on_one_scale`` scores the point again on
     the full data, where it gains more than the stand-in, and it is chosen.
     A best candidate scored with the split likelihood (an IF filter: its mean
     part is on the chirp average's scale already) is compared as it is."""
     import dataclasses as dc
 
-    from sionna_mmir.effects.library.adc_clipping import ADCClipping
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
     from sionna_mmir.effects.library.if_filter import IFFilter
     from sionna_mmir.residual.ranking import _Tiers, rank_candidates
 
@@ -564,9 +564,9 @@ def test_17_candidates_of_the_two_tiers_are_compared_on_the_full_data():
     m = EffectModel(ctx, clean + point + _noise(clean.shape, 0.03, 24), clean)
     m.fit(trainable=[])
     tiers = _Tiers(m, 3, 0, "auto")
-    pool = [ADCClipping(), MissingScatterer(), IFFilter()]
+    pool = [EgoMotion(), MissingScatterer(), IFFilter()]
     (avg,) = rank_candidates(tiers.avg, [pool[1]], tiers.avg_folds)
-    stand_in = dc.replace(avg, name="adc_clipping", n_params=1, gain=2 * avg.gain,
+    stand_in = dc.replace(avg, name="ego_motion", n_params=1, gain=2 * avg.gain,
                           score=2 * avg.gain - 1)
     ranking, best = tiers.on_one_scale([stand_in, avg], stand_in, pool, lambda c: c.score > 0,
                                        1.0, 150, None)

@@ -104,6 +104,11 @@ class Effect:
     #: mean the same on averaged data (a static, linear effect); the residual
     #: loop scores such candidates on chirp-averaged data
     chirp_static = True
+    #: applied sample by sample to each chirp alone (a saturation): not linear,
+    #: but it commutes with the chirp average when every mean effect before it
+    #: in the chain is chirp-static, since its input is then the same in every
+    #: chirp (:meth:`~sionna_mmir.effects.model.EffectModel.static_flags`)
+    pointwise = False
     #: ``apply(x) = x + s(p)`` with ``s`` independent of ``x`` (an extra path):
     #: a chirp-varying additive effect can be held fixed on chirp-averaged data
     #: (:class:`~sionna_mmir.effects.frozen.FrozenPart`)

@@ -199,8 +199,7 @@ class EffectModel:
     def chirp_averaged(self, freeze: bool = False) -> "EffectModel":
         """This model on the data averaged over chirp loops (``C = 1``).
 
-        Every component must be :attr:`~.base.Effect.chirp_static` (applying it
-        commutes with the average), so its values carry over unchanged; the
+        Every component must commute with the average (:meth:`static_flags`), so its values carry over unchanged; the
         normalisation (``scale``, ``base_gain``) is kept, so values fitted on
         the averaged model mean the same on this one.  The white floor is
         re-estimated (averaging divides it by ``C``).  With ``freeze``, a
@@ -215,8 +214,8 @@ class EffectModel:
         C = self.ctx.shape[3]
         if C == 1:
             return self
-        moving = [c.effect.name for c in self.components if not c.effect.chirp_static
-                  and not (freeze and averageable(c.effect))]
+        moving = [c.effect.name for c, s in zip(self.components, self.static_flags())
+                  if not s and not (freeze and averageable(c.effect))]
         if moving:
             raise InputValueError(f"chirp_averaged: {moving} change from chirp to chirp")
         parts = self._frozen_parts() if freeze else {}
@@ -247,7 +246,26 @@ class EffectModel:
         """Whether :meth:`chirp_averaged` with ``freeze=True`` can represent this model."""
         from .frozen import averageable
 
-        return all(averageable(c.effect) for c in self.components)
+        return all(s or averageable(c.effect)
+                   for c, s in zip(self.components, self.static_flags()))
+
+    def static_flags(self, extra=None) -> list:
+        """Per component (and for ``extra``, an effect to be added, last):
+        whether applying it commutes with the chirp average here.
+
+        A :attr:`~.base.Effect.chirp_static` effect always does; a
+        :attr:`~.base.Effect.pointwise` one (ADC clipping) when every mean
+        effect before it in the chain does, so that its input is the same
+        in every chirp.  Variance effects do not change the mean."""
+        effects = [c.effect for c in self.components] + ([extra] if extra is not None else [])
+        flags, upstream = [False] * len(effects), True
+        for key in sorted({e.chain_key for e in effects}):
+            group = [i for i, e in enumerate(effects) if e.chain_key == key]
+            for i in group:
+                flags[i] = effects[i].chirp_static or (effects[i].pointwise and upstream)
+            upstream = upstream and all(flags[i] or effects[i].kind == "variance"
+                                        for i in group)
+        return flags
 
     @_one_thread
     def _frozen_parts(self) -> dict:
@@ -259,8 +277,8 @@ class EffectModel:
         with dr.suspend_grad():
             tens = self._tensors()
             x, X, _ = self._forward(tens)
-            for i, c in enumerate(self.components):
-                if c.effect.chirp_static:
+            for i, (c, static) in enumerate(zip(self.components, self.static_flags())):
+                if static:
                     continue
                 blk = _block(tens, i, c)
                 if c.effect.kind == "variance":

@@ -145,7 +145,7 @@ def _adopt(model, eff, maxiter, pool=SERIAL):
     is backfitted on every chirp: on the average it would be held fixed, so
     its own refit would wait for a kept trial and leave part of a
     chirp-varying residual to the next mover.  Returns the new component."""
-    static = _averaged_scoring(eff) and model.can_average()
+    static = _averaged_scoring(eff, model) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     if eff.kind == "variance" and work.ctx.shape[3] > 1:

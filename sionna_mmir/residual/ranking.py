@@ -366,7 +366,7 @@ class _Tiers:
     (:class:`~sionna_mmir.effects.frozen.FrozenPart`: a mover's averaged
     path, a noise effect's averaged variance); the full model is used for
     every candidate only when one of them has no averaged counterpart
-    (ego-motion, clipping)."""
+    (ego motion; ADC clipping behind a chirp-varying mean effect)."""
 
     def __init__(self, model, folds, seed, groups, pool=SERIAL):
         self.model, self.pool = model, pool
@@ -379,8 +379,8 @@ class _Tiers:
     def rank(self, candidates, penalty, maxiter, progress):
         """Scores of ``candidates``, best first (each scored once per round)."""
         todo = [c for c in candidates if c.name not in self.scores]
-        fast = [c for c in todo if _averaged_scoring(c)]
-        slow = [c for c in todo if not _averaged_scoring(c)]
+        fast = [c for c in todo if _averaged_scoring(c, self.model)]
+        slow = [c for c in todo if not _averaged_scoring(c, self.model)]
         groups = [(m, cands, f) for m, cands, f in ((self.avg, fast, self.avg_folds),
                                                     (self.model, slow, self.folds)) if cands]
         for out in rank_groups(groups, penalty, maxiter, progress, self.pool):
@@ -399,10 +399,11 @@ class _Tiers:
         when the best was scored with the split likelihood, whose mean part
         is on the chirp average's scale already: :func:`_split_scored`)."""
         effects = {c.name: c for c in pool}
-        if self.avg is self.model or _averaged_scoring(effects[best.name]) \
+        if self.avg is self.model or _averaged_scoring(effects[best.name], self.model) \
                 or _split_scored(effects[best.name], self.model):
             return ranking, best
-        rival = next((c for c in ranking if ok(c) and _averaged_scoring(effects[c.name])), None)
+        rival = next((c for c in ranking
+                      if ok(c) and _averaged_scoring(effects[c.name], self.model)), None)
         if rival is None:
             return ranking, best
         (again,) = rank_candidates(self.model, [effects[rival.name]], self.folds, penalty,
@@ -414,12 +415,15 @@ class _Tiers:
         return ranking, next((c for c in ranking if ok(c)), None)
 
 
-def _averaged_scoring(eff) -> bool:
-    """Whether ``eff`` is scored and fitted on chirp-averaged data: a
-    chirp-static effect, unless it also shapes the receiver noise (an IF
-    filter): averaging over chirps buries the noise shape, its most robust
-    signature, under what the scene leaves unexplained."""
-    return eff.chirp_static and not getattr(eff, "shapes_noise", False)
+def _averaged_scoring(eff, model) -> bool:
+    """Whether ``eff`` is scored and fitted on chirp-averaged data beside
+    ``model``'s components: an effect that commutes with the average there
+    (:meth:`~sionna_mmir.effects.model.EffectModel.static_flags`: chirp-static,
+    or ADC clipping behind a static mean model), unless it also shapes the
+    receiver noise (an IF filter): averaging over chirps buries the noise
+    shape, its most robust signature, under what the scene leaves
+    unexplained."""
+    return model.static_flags(eff)[-1] and not getattr(eff, "shapes_noise", False)
 
 
 def _mean_only(eff) -> bool:

@@ -43,6 +43,7 @@ class ADCClipping(Effect):
 
     name = "adc_clipping"
     chirp_static = False
+    pointwise = True
     kind = "mean"
     stage = 3
     description = "ADC saturation of I and Q at +-A (smooth clip); apply last"
