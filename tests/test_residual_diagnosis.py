@@ -794,3 +794,44 @@ def test_21b_an_adoption_whose_refit_needs_a_higher_floor_is_undone():
     assert 0 < v["gain_floor"][0] < 10.0
     assert "needs 10.000 nats" in _veto_reason(v)
     assert [c.effect.name for c in run.model.components] == ["channel_gain"]
+
+
+def test_22_a_noise_model_must_claim_scatter_that_is_new_in_every_chirp():
+    """Phase noise on every chirp (independent draws) and a power amplifier's
+    droop over the frame (the Tx gain sagging 1.5 dB exponentially from
+    chirp to chirp, the outside effect of the suite) both leave
+    chirp-to-chirp scatter at the targets that a phase-noise skirt fits.
+    The droop's repeats from one chirp to the next: its lag-1 chirp
+    correlation is far above white noise's, and the candidate is not
+    acceptable; the real phase noise's is within the white range (truth:
+    the planted processes; white noise alone: |rho| < 3 / sqrt(n))."""
+    from test_effects_sensor import _phase_noise_draws
+
+    from sionna_mmir.effects.library.phase_noise import PhaseNoise
+    from sionna_mmir.residual.ranking import chirp_memory, memory_stats, rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    F, T, R, Cn, N = ctx.shape
+    folds = cv_folds(ctx.shape[:4], 3)
+    noise = _noise(clean.shape, 3e-3, 31)
+    # white noise alone: the bias of the chirp mean is taken out
+    n = F * T * R * (Cn - 1)
+    stats = [memory_stats(_noise(clean.shape, 1.0, 32), np.ones(N), ~t) for t in folds]
+    memory, limit = chirp_memory(stats)
+    assert memory < 2 / np.sqrt(n) and limit == pytest.approx(0.3 + 3 / np.sqrt(n))
+
+    def scored(meas):
+        m = EffectModel(ctx, meas, clean)
+        m.fit(trainable=[])
+        (c,) = rank_candidates(m, [PhaseNoise()], folds)
+        return c
+
+    phi = _phase_noise_draws(np.random.default_rng(33), (F, T, 1, Cn), N, -35.0, 2.0)
+    jitter = scored(clean * np.exp(1j * phi) + noise)
+    k = np.arange(Cn) / (Cn - 1)
+    sag = 10 ** (-1.5 * (1 - np.exp(-k / 0.3)) / (1 - np.exp(-1 / 0.3)) / 20)
+    droop = scored(clean * sag[None, None, None, :, None] + noise)
+    assert jitter.gain > 100 and droop.gain > 100, (jitter, droop)
+    assert jitter.chirp_memory < 0.3 < jitter.memory_limit < droop.chirp_memory, (jitter, droop)

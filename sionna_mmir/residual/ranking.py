@@ -39,6 +39,11 @@ class CandidateScore:
     #: candidates; 0 for variance effects, which do not predict the mean); a
     #: mean-only candidate (:func:`_mean_only`) is acceptable only when it is <= 0
     energy_change_db: float = 0.0
+    #: lag-1 chirp correlation of the held-out scatter a variance effect
+    #: claims, and the most an acceptable one may show (:func:`chirp_memory`;
+    #: 0 and inf for mean effects and short frames)
+    chirp_memory: float = 0.0
+    memory_limit: float = float("inf")
     #: seconds its fold fits took (summed over folds, each timed where it ran)
     fit_s: float = 0.0
     #: least gain per sample its fits call for (the median over folds of
@@ -181,6 +186,64 @@ def slot_share(gains: list, tests: list) -> float:
     return float(np.mean(per_slot > 0))
 
 
+#: least chirp loops for :func:`chirp_memory` (with fewer the deviation from
+#: the chirp mean is too constrained to show a correlation)
+MEMORY_MIN_CHIRPS = 4
+
+
+def memory_stats(residual: np.ndarray, excess: np.ndarray, cells):
+    """What :func:`chirp_memory` pools over the folds from one fold's held-out
+    ``cells`` (boolean ``[F, T, R, C]``): per range bin (unitary DFT of
+    ``residual``, complex ``[F, T, R, C, N]``, time domain) the sum of the lag-1
+    products ``D_{c+1} conj(D_c)`` and of ``|D_c|^2`` of the deviation from the
+    chirp mean over the series (frame, Tx, Rx) whose chirps are all held out,
+    the candidate's predicted variance over the white floor (``excess``,
+    broadcastable to ``residual``) summed there, and the number of series;
+    None with fewer than :data:`MEMORY_MIN_CHIRPS` loops or no such series."""
+    C = residual.shape[3]
+    full = np.all(np.asarray(cells, bool), axis=3)                  # [F, T, R]
+    if C < MEMORY_MIN_CHIRPS or not full.any():
+        return None
+    R = np.fft.fft(residual[full], axis=-1, norm="ortho")            # [S, C, N]
+    D = R - R.mean(axis=1, keepdims=True)
+    return {"lag": np.sum(D[:, 1:] * np.conj(D[:, :-1]), axis=(0, 1)),
+            "power": np.sum(np.abs(D) ** 2, axis=(0, 1)),
+            "excess": np.clip(np.broadcast_to(excess, residual.shape)[full].sum(axis=(0, 1)),
+                              0, None),
+            "series": int(full.sum()), "chirps": C}
+
+
+def chirp_memory(stats: list) -> tuple:
+    """How much of the chirp-to-chirp scatter a noise model claims repeats
+    from one chirp loop to the next: ``(memory, limit)``.
+
+    Noise (thermal, a phase-noise skirt, a coloured floor) is independent
+    from chirp to chirp; a disturbance that drifts over the frame (a power
+    amplifier's droop, a target's motion) is not, even where a stationary
+    noise model fits its power.  Per range bin ``k``, pooled over the folds'
+    :func:`memory_stats` (``S`` series of ``C`` loops), the lag-1
+    correlation of the deviation from the chirp mean is
+    ``rho_k = A_k / (S (C - 1)) / ((C - 1) P_k / (S C^2)) + 1 / (C - 1)``
+    (``A_k``, ``P_k`` the summed lag products and powers): removing the mean
+    makes white deviations correlate by exactly ``-1 / (C - 1)``, which the
+    second term takes out, so white noise gives ``|rho_k| ~ 1 / sqrt(n)``
+    (``n = S (C - 1)`` pairs) and a drift up to 1.  ``memory`` is the mean
+    of ``|rho_k|`` weighted by the candidate's predicted excess variance;
+    ``limit`` = :data:`MAX_CHIRP_MEMORY` ``+ 3 / sqrt(n)``.  ``(0, inf)``
+    when no fold had a statistic.
+    """
+    stats = [s for s in stats if s is not None]
+    if not stats:
+        return 0.0, float("inf")
+    C, S = stats[0]["chirps"], sum(s["series"] for s in stats)
+    lag = sum(s["lag"] for s in stats) / (S * (C - 1))
+    power = (C - 1) / C * sum(s["power"] for s in stats) / (S * C)
+    rho = np.abs(lag / np.maximum(power, 1e-300) + 1.0 / (C - 1))
+    w = sum(s["excess"] for s in stats)
+    memory = float(w @ rho / w.sum()) if w.sum() > 0 else 0.0
+    return memory, MAX_CHIRP_MEMORY + 3.0 / np.sqrt(S * (C - 1))
+
+
 def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     """Fit the candidate ``eff`` (the last component of ``cand``) on ``train``.
 
@@ -267,6 +330,9 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
     if eff.kind == "variance":
         out["slots"] = cand.nll_profiled(~train, True, by_slot=True,
                                          deviation=_slot_deviation(deviation))[1]
+        x, v = cand.mean_variance_numpy()
+        white = float(np.exp(cand.nuisance.values["log_noise"][0]))
+        out["memory"] = memory_stats(cand.y - x, v - white, ~train)
     else:
         out["energy"] = cand.residual_energy(~train)
     out["s"] = time.perf_counter() - t0
@@ -338,12 +404,18 @@ def _base_nll(base: dict, fit: dict) -> float:
     return base["nll"]
 
 
+def _memory_fields(stats: list) -> dict:
+    """``chirp_memory`` and ``memory_limit`` of a :class:`CandidateScore`."""
+    memory, limit = chirp_memory(stats)
+    return {"chirp_memory": memory, "memory_limit": limit}
+
+
 def _scores(g, candidates, bases, fits, penalty) -> list:
     """The :class:`CandidateScore` of every candidate of group ``g``, best first."""
     out = []
     for i, eff in enumerate(candidates):
         gains, n_tot, cell_gains, energy, secs = [], 0.0, [], [0.0, 0.0], 0.0
-        floors = []
+        floors, memory = [], []
         for k, (train, _, base, n_test) in enumerate(bases):
             fit = fits[((g, i), k)]
             secs += fit["s"]
@@ -352,6 +424,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
             gains.append(nll0 - fit["nll"] * n_test)
             if eff.kind == "variance":
                 cell_gains.append(base["slots"] - fit["slots"])
+                memory.append(fit["memory"])
             else:
                 energy[0] += base["energy"]
                 energy[1] += fit["energy"]
@@ -366,6 +439,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
                                               if cell_gains else 1.0),
                                   energy_change_db=(_db(energy[1] / energy[0])
                                                     if energy[0] > 0 else 0.0),
+                                  **_memory_fields(memory),
                                   fit_s=secs, gain_floor=float(np.median(floors))))
     return sorted(out, key=lambda c: c.score, reverse=True)
 
@@ -460,6 +534,13 @@ def required_slot_share(n_slots: int) -> float:
     of them lets it, is not "most" (24 slots: 0.70; 192: 0.57)."""
     return min(1.0, MIN_SLOT_SHARE + 1.0 / np.sqrt(max(int(n_slots), 1)))
 
+#: a variance effect is not acceptable when the scatter it claims repeats
+#: from chirp to chirp by more than this lag-1 correlation plus three times
+#: white noise's (:func:`chirp_memory`: white ~ 1 / sqrt(n); the data's
+#: deviation at a droop over the frame or an unexplained walker: 0.6-0.9 on
+#: the suite's cascade runs)
+MAX_CHIRP_MEMORY = 0.3
+
 #: a sensor effect is adopted only when its held-out gain exceeds every
 #: acceptable scene-side candidate's by more than this share (:func:`_scene_first`)
 SCENE_MARGIN = 0.1
@@ -528,8 +609,9 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
 
     def ok(c):
         variance = kinds_of.get(c.name) == "variance"
-        stationary = not variance or c.slot_share >= required_slot_share(
+        stationary = not variance or (c.slot_share >= required_slot_share(
             int(np.prod(tiers.model.ctx.shape[:4])) // tiers.model.ctx.shape[2])
+            and c.chirp_memory <= c.memory_limit)
         predicts_mean = c.name not in mean_only or c.energy_change_db <= 0.0
         least = max(floor.get(c.name, min_gain), c.gain_floor)
         return (c.score > 0 and c.gain_per_sample >= least and stationary
