@@ -48,7 +48,10 @@ only when they help in most transmit slots (frame, Tx, chirp; in TDM-MIMO
 every Tx fires in its own slot) (:func:`~.ranking.required_slot_share`):
 a stationary noise model that gains in a few chirps only is absorbing a
 localised disturbance (interference, a burst), which is reported as
-unexplained instead.  Of two sensor effects that explain nearly the same,
+unexplained instead; and only when the scatter they claim is new in every
+chirp loop (:func:`~.ranking.chirp_memory`): a disturbance that drifts over
+the frame (a power amplifier's droop) repeats from one chirp to the next,
+noise does not.  Of two sensor effects that explain nearly the same,
 the one with fewer parameters is adopted while the richer one's surplus is
 scene misfit a scene-side candidate could take (:func:`~.ranking._parsimonious`), and
 a sensor effect must beat every scene-side candidate by a margin

@@ -52,7 +52,8 @@ class CandidateScore:
     gain_floor: float = 0.0
 
     def to_dict(self) -> dict:
-        return {k: (round(v, 6) if isinstance(v, float) else v)
+        """JSON-ready: floats rounded, an unbounded limit as None."""
+        return {k: ((round(v, 6) if np.isfinite(v) else None) if isinstance(v, float) else v)
                 for k, v in dataclasses.asdict(self).items()}
 
 
