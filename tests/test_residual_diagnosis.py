@@ -543,6 +543,47 @@ def test_16_ego_motion_is_scored_beside_a_mover_it_makes_redundant():
     assert ranked["ego_motion"] > ranked["moving_scatterer"] > 0, ranked
 
 
+def test_16b_ego_motion_beside_a_real_walker_refits_only_itself_and_the_walker():
+    """A walker (4.5 m, -0.9 m/s) in a static scene seen from a radar at
+    rest, adopted as a mover: ego motion scored next starts without the
+    mover, finds the radar at rest, and the walker restored beside it
+    explains the training cells better, so only ego motion and the mover
+    are refitted -- not every component on every chirp -- and ego motion
+    gains nothing (truth: ``direct_adc`` of the walker, the radar at rest)."""
+    from helpers import direct_adc, point_target_delays
+    from test_effects_scene import _scene
+
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.effects.library.scatterer import unit_vectors
+    from sionna_mmir.residual.ranking import rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=16)
+    ctx = EffectContext(radar)
+    base = _scene(radar)[None]
+    walker = direct_adc(radar, 0.3, point_target_delays(radar, 4.5 * unit_vectors(12.0)),
+                        2 * -0.9 / C)[None]
+    m = EffectModel(ctx, base + walker + _noise(base.shape, 0.01, 4), base)
+    mover = m.add(MovingScatterer())
+    m.fit()
+    assert mover.values["velocity"][0] == pytest.approx(-0.9, abs=0.05)
+    calls = []
+    real_fit = EffectModel.fit
+
+    def fit(self, trainable=None, *a, **k):
+        calls.append(None if trainable is None else list(trainable))
+        return real_fit(self, trainable, *a, **k)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(EffectModel, "fit", fit)
+    try:
+        (ego,) = rank_candidates(m, [EgoMotion()], cv_folds(ctx.shape[:4], 3))
+    finally:
+        mp.undo()
+    assert ego.score < 0, ego
+    assert None not in calls and [1, 0] in calls, calls
+
+
 def test_17_candidates_of_the_two_tiers_are_compared_on_the_full_data():
     """A static point the scene lacks, 16 chirp loops: scored on the chirp
     average its held-out gain is some nats; a candidate scored on every chirp
