@@ -48,6 +48,9 @@ def test_01_planted_gains_adopted_and_reported(report):
     assert chosen["energy_change_db"] < 0, chosen
     # where the time went: the round's wall seconds and each candidate's fold fits
     assert a["seconds"]["rank"] > 0 and a["seconds"]["adopt"] > 0
+    # and the adoption's stages, which lie within it
+    stages = {k: v for k, v in a["seconds"].items() if k.startswith("adopt_")}
+    assert "adopt_joint" in stages and sum(stages.values()) <= a["seconds"]["adopt"] + 0.1
     assert all(c["fit_s"] > 0 for c in a["candidates"])
     assert sum(c["fit_s"] for c in a["candidates"]) < saved["timings"]["diagnose_s"] * 2
     with open(os.path.join(out, "report.md")) as f:

@@ -122,7 +122,10 @@ def loop_markdown(doc: dict) -> str:
         secs = a.get("seconds") or {}
         L += [f"## Adoption {k + 1}: {a['name']}", "", a["verdict"], ""]
         if secs:
-            L += [f"Round: ranking {secs['rank']:.1f} s, adoption {secs['adopt']:.1f} s.", ""]
+            stages = ", ".join(f"{k[len('adopt_'):].replace('_', ' ')} {v:.1f} s"
+                               for k, v in secs.items() if k.startswith("adopt_"))
+            L += [f"Round: ranking {secs['rank']:.1f} s, adoption {secs['adopt']:.1f} s"
+                  + (f" ({stages})" if stages else "") + ".", ""]
         L += ["| candidate | params | held-out gain | score | held-out residual change [dB] "
               "| fit [s] |", "|---|---|---|---|---|---|"]
         L += [f"| {c['name']} | {c['n_params']} | {c['gain']:.1f} | {c['score']:.1f} | "

@@ -11,7 +11,9 @@ order that gives the result of trying them one by one (:func:`_in_order`).
 """
 from __future__ import annotations
 
+import contextlib
 import copy
+import time
 
 import numpy as np
 
@@ -132,7 +134,18 @@ def _position(model: EffectModel, comp) -> int:
     return next(i for i, c in enumerate(model.components) if c is comp)
 
 
-def _adopt(model, eff, maxiter, pool=SERIAL):
+@contextlib.contextmanager
+def _timed(clock, stage: str):
+    """Add the seconds of the ``with`` block to ``clock[stage]`` (``clock`` may be None)."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        if clock is not None:
+            clock[stage] = clock.get(stage, 0.0) + time.perf_counter() - t0
+
+
+def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
     """Add ``eff`` and refit everything jointly (backfitting earlier effects
     after a mean effect); on chirp-averaged data when every component allows
     it (then the full model takes the values and refits its noise floor;
@@ -144,23 +157,29 @@ def _adopt(model, eff, maxiter, pool=SERIAL):
     ``1 / C`` of the cost.  A mover
     is backfitted on every chirp: on the average it would be held fixed, so
     its own refit would wait for a kept trial and leave part of a
-    chirp-varying residual to the next mover.  Returns the new component."""
+    chirp-varying residual to the next mover.  ``clock`` (a dict) collects
+    the seconds of the stages (``joint``, ``backfit``, ``carry_back``).
+    Returns the new component."""
     static = _averaged_scoring(eff, model) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     if eff.kind == "variance" and work.ctx.shape[3] > 1:
-        _fit_noise_model(work, comp, maxiter)
+        with _timed(clock, "joint"):
+            _fit_noise_model(work, comp, maxiter)
         return comp
-    if any(c.effect.name in set(eff.may_replace) for c in work.components):
-        _fit_candidate(work, comp.effect, None, 2 * maxiter)     # the path it was scored on
-    work.fit(maxiter=2 * maxiter)
+    with _timed(clock, "joint"):
+        if any(c.effect.name in set(eff.may_replace) for c in work.components):
+            _fit_candidate(work, comp.effect, None, 2 * maxiter)     # as it was scored
+        work.fit(maxiter=2 * maxiter)
     if eff.kind != "variance":      # a noise model only reweights the mean fit
-        if work is model and getattr(eff, "shapes_noise", False) and model.can_average() \
-                and model.ctx.shape[3] > 1:
-            return _backfit_on_average(model, comp, maxiter, pool)
-        comp = _backfit(work, comp, maxiter, pool)
+        with _timed(clock, "backfit"):
+            if work is model and getattr(eff, "shapes_noise", False) and model.can_average() \
+                    and model.ctx.shape[3] > 1:
+                return _backfit_on_average(model, comp, maxiter, pool)
+            comp = _backfit(work, comp, maxiter, pool)
     if work is not model:                   # the values carry over
-        comp = _carry_back(model, work, comp, maxiter)
+        with _timed(clock, "carry_back"):
+            comp = _carry_back(model, work, comp, maxiter)
     return comp
 
 

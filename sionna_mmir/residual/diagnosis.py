@@ -198,7 +198,7 @@ class DiagnosisRun:
             eff = next(c for c in self.pool if c.name == best.name)
             before, res_before = self.current, self.model.residual()
             t0 = time.perf_counter()
-            comp = self._adopt_or_undo(eff, best)
+            comp = self._adopt_or_undo(eff, best, secs)
             secs["adopt"] += time.perf_counter() - t0
             if comp is not None:
                 break
@@ -215,16 +215,21 @@ class DiagnosisRun:
             self.progress("adopted", eff.name)
         return a
 
-    def _adopt_or_undo(self, eff, score):
+    def _adopt_or_undo(self, eff, score, clock=None):
         """Adopt ``eff`` (:func:`~.adoption._adopt`); undo it and return None when the
         joint refit made the mean model worse (:func:`~.adoption._mean_worse`)
         or showed it to need a higher gain floor than its held-out gain per
         sample (``score``, its :class:`~.ranking.CandidateScore`): a mover
         whose fold fits moved but whose refit comes to rest beside the static
         scene is a scatterer, held to a scatterer's floor
-        (:meth:`~sionna_mmir.effects.base.Effect.fitted_gain_floor`)."""
+        (:meth:`~sionna_mmir.effects.base.Effect.fitted_gain_floor`).
+        ``clock`` collects the adoption's stage seconds (``adopt_joint``, ...)."""
         before, saved = self.current, self.model.copy()
-        comp = _adopt(self.model, eff, self.maxiter, self.fits)
+        stages = {}
+        comp = _adopt(self.model, eff, self.maxiter, self.fits, stages)
+        if clock is not None:
+            for k, v in stages.items():
+                clock["adopt_" + k] = clock.get("adopt_" + k, 0.0) + v
         self.current = _current_metrics(self.model)
         floor = float(comp.effect.fitted_gain_floor(self.model, comp.values))
         if _mean_worse(eff, before, self.current):
