@@ -256,14 +256,15 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     those silenced (:meth:`~sionna_mmir.effects.base.Effect.silenced`), then
     with every component, so the object's amplitude can move back from the
     mover to the scene and the leakage regrow behind the filter.  Unless
-    the silenced components, restored at their fitted values beside the
-    candidate as fitted alone, explain the training cells better: then they
-    are not what the candidate replaces (a real walker, which ego motion at
-    rest leaves alone), and only the candidate and they are refitted (a
-    fit of every component on the training channels of every chirp took
-    200 s a round beside the suite's walker and lost held-out likelihood
-    the components had fitted on all channels).  The adoption fits it the
-    same way."""
+    the candidate, fitted alone, comes to rest (silencing it changes
+    nothing beside the restored components) and the silenced components,
+    restored at their fitted values, explain the training cells better:
+    then they are not what it replaces (a real walker, beside which ego
+    motion finds the radar at rest), and only the candidate and they are
+    refitted (a fit of every component on the training channels of every
+    chirp took 200 s a round beside the suite's walker and lost held-out
+    likelihood the components had fitted on all channels).  The adoption
+    fits it the same way."""
     new = len(cand.components) - 1
     names = set(eff.may_replace)
     replaced = [c for c in cand.components[:new] if c.effect.name in names]
@@ -278,7 +279,7 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     quiet = cand.nll(train)
     for c, v in zip(replaced, fitted):
         c.values = v
-    if cand.nll(train) < quiet:
+    if _at_rest(cand, train) and cand.nll(train) < quiet:
         ids = {id(c) for c in replaced}
         cand.fit(trainable=[new] + [i for i, c in enumerate(cand.components) if id(c) in ids],
                  cells=train, maxiter=maxiter)
@@ -286,6 +287,23 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     for c, v in zip(replaced, silenced):
         c.values = v
     cand.fit(cells=train, maxiter=maxiter)
+
+
+def _at_rest(cand: EffectModel, train, tol: float = 1e-6) -> bool:
+    """Whether the last component of ``cand`` explains nothing on ``train``:
+    silenced (:meth:`~sionna_mmir.effects.base.Effect.silenced`) the NLL per
+    sample rises by at most ``tol`` nats.  False for an effect that cannot
+    be silenced."""
+    own = cand.components[-1]
+    rest = own.effect.silenced(own.values)
+    if rest is None:
+        return False
+    fitted, nll = own.values, cand.nll(train)
+    own.values = rest
+    try:
+        return cand.nll(train) <= nll + tol
+    finally:
+        own.values = fitted
 
 
 #: the default penalty: the BIC's ``ln(n) / 2`` nats per real parameter

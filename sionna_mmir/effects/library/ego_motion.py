@@ -342,6 +342,10 @@ class EgoMotion(Effect):
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
         return xr if moved is None else ops.cadd(moved, xr)
 
+    def silenced(self, values):
+        """The radar at rest (velocity 0: the static scene unchanged)."""
+        return {**values, "velocity": np.zeros_like(np.asarray(values["velocity"]))}
+
     @staticmethod
     def static_radial_velocity(values, az_deg, el_deg=0.0):
         """Radial velocity [m/s] (positive receding, a mover's convention) of
