@@ -876,3 +876,26 @@ def test_22_a_noise_model_must_claim_scatter_that_is_new_in_every_chirp():
     droop = scored(clean * sag[None, None, None, :, None] + noise)
     assert jitter.gain > 100 and droop.gain > 100, (jitter, droop)
     assert jitter.chirp_memory < 0.3 < jitter.memory_limit < droop.chirp_memory, (jitter, droop)
+
+
+def test_22b_chirp_memory_of_white_noise_is_unbiased():
+    """Over many white series the lag-1 statistic's mean is 0 to within its
+    spread: the mean removal's ``-1 / (C - 1)`` is taken out exactly (truth:
+    ``E[D_{c+1} conj(D_c)] / E|D_c|^2 = -1 / (C - 1)`` for white noise),
+    for 4 and 16 chirp loops; a ramp over the chirps gives nearly 1."""
+    from sionna_mmir.residual.ranking import chirp_memory, memory_stats
+
+    rng = np.random.default_rng(40)
+    for C in (4, 16):
+        shape = (1, 200, 50, C, 8)
+        z = (rng.normal(size=shape) + 1j * rng.normal(size=shape)) / np.sqrt(2)
+        stats = memory_stats(z, np.ones(8), np.ones(shape[:4], bool))
+        n = 200 * 50 * (C - 1)
+        lag = stats["lag"] / (200 * 50 * (C - 1))
+        power = stats["power"] / (200 * 50 * C)
+        rho = lag / power + 1.0 / (C - 1)
+        assert np.all(np.abs(rho) < 4 / np.sqrt(n)), (C, rho)
+        assert chirp_memory([stats])[0] < 3 / np.sqrt(n)
+    ramp = np.broadcast_to(np.linspace(-1, 1, 16)[None, None, None, :, None], (1, 4, 4, 16, 8))
+    dc = np.eye(8)[0]                               # a constant over fast time: range bin 0
+    assert chirp_memory([memory_stats(ramp + 0j, dc, np.ones((1, 4, 4, 16), bool))])[0] > 0.8

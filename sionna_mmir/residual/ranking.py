@@ -224,10 +224,11 @@ def chirp_memory(stats: list) -> tuple:
     noise model fits its power.  Per range bin ``k``, pooled over the folds'
     :func:`memory_stats` (``S`` series of ``C`` loops), the lag-1
     correlation of the deviation from the chirp mean is
-    ``rho_k = A_k / (S (C - 1)) / ((C - 1) P_k / (S C^2)) + 1 / (C - 1)``
+    ``rho_k = (A_k / (S (C - 1))) / (P_k / (S C)) + 1 / (C - 1)``
     (``A_k``, ``P_k`` the summed lag products and powers): removing the mean
-    makes white deviations correlate by exactly ``-1 / (C - 1)``, which the
-    second term takes out, so white noise gives ``|rho_k| ~ 1 / sqrt(n)``
+    makes white deviations correlate by exactly ``-1 / (C - 1)``
+    (``E[D_{c+1} conj(D_c)] = -s^2 / C``, ``E|D_c|^2 = s^2 (C - 1) / C``),
+    which the second term takes out, so white noise gives ``|rho_k| ~ 1 / sqrt(n)``
     (``n = S (C - 1)`` pairs) and a drift up to 1.  ``memory`` is the mean
     of ``|rho_k|`` weighted by the candidate's predicted excess variance;
     ``limit`` = :data:`MAX_CHIRP_MEMORY` ``+ 3 / sqrt(n)``.  ``(0, inf)``
@@ -238,7 +239,7 @@ def chirp_memory(stats: list) -> tuple:
         return 0.0, float("inf")
     C, S = stats[0]["chirps"], sum(s["series"] for s in stats)
     lag = sum(s["lag"] for s in stats) / (S * (C - 1))
-    power = (C - 1) / C * sum(s["power"] for s in stats) / (S * C)
+    power = sum(s["power"] for s in stats) / (S * C)
     rho = np.abs(lag / np.maximum(power, 1e-300) + 1.0 / (C - 1))
     w = sum(s["excess"] for s in stats)
     memory = float(w @ rho / w.sum()) if w.sum() > 0 else 0.0
