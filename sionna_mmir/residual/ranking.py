@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError
+from ..effects.library._sensor_common import chirp_deviation
 from ..effects.model import EffectModel
 from .analysis import _db
 from .workers import SERIAL
@@ -197,7 +198,8 @@ def memory_stats(residual: np.ndarray, excess: np.ndarray, cells):
     ``cells`` (boolean ``[F, T, R, C]``): per range bin (unitary DFT of
     ``residual``, complex ``[F, T, R, C, N]``, time domain) the sum of the lag-1
     products ``D_{c+1} conj(D_c)`` and of ``|D_c|^2`` of the deviation from the
-    chirp mean over the series (frame, Tx, Rx) whose chirps are all held out,
+    chirp mean (:func:`~sionna_mmir.effects.library._sensor_common.chirp_deviation`,
+    whose scale cancels in :func:`chirp_memory`) over the series (frame, Tx, Rx) whose chirps are all held out,
     the candidate's predicted variance over the white floor (``excess``,
     broadcastable to ``residual``) summed there, and the number of series;
     None with fewer than :data:`MEMORY_MIN_CHIRPS` loops or no such series."""
@@ -205,8 +207,7 @@ def memory_stats(residual: np.ndarray, excess: np.ndarray, cells):
     full = np.all(np.asarray(cells, bool), axis=3)                  # [F, T, R]
     if C < MEMORY_MIN_CHIRPS or not full.any():
         return None
-    R = np.fft.fft(residual[full], axis=-1, norm="ortho")            # [S, C, N]
-    D = R - R.mean(axis=1, keepdims=True)
+    D = np.fft.fft(chirp_deviation(residual)[full], axis=-1, norm="ortho")   # [S, C, N]
     return {"lag": np.sum(D[:, 1:] * np.conj(D[:, :-1]), axis=(0, 1)),
             "power": np.sum(np.abs(D) ** 2, axis=(0, 1)),
             "excess": np.clip(np.broadcast_to(excess, residual.shape)[full].sum(axis=(0, 1)),
@@ -280,7 +281,8 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     quiet = cand.nll(train)
     for c, v in zip(replaced, fitted):
         c.values = v
-    if _at_rest(cand, train) and cand.nll(train) < quiet:
+    restored = cand.nll(train)
+    if restored < quiet and _at_rest(cand, train, restored):
         ids = {id(c) for c in replaced}
         cand.fit(trainable=[new] + [i for i, c in enumerate(cand.components) if id(c) in ids],
                  cells=train, maxiter=maxiter)
@@ -290,16 +292,16 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     cand.fit(cells=train, maxiter=maxiter)
 
 
-def _at_rest(cand: EffectModel, train, tol: float = 1e-6) -> bool:
+def _at_rest(cand: EffectModel, train, nll: float, tol: float = 1e-6) -> bool:
     """Whether the last component of ``cand`` explains nothing on ``train``:
     silenced (:meth:`~sionna_mmir.effects.base.Effect.silenced`) the NLL per
-    sample rises by at most ``tol`` nats.  False for an effect that cannot
-    be silenced."""
+    sample rises by at most ``tol`` nats over ``nll`` (``cand``'s NLL on
+    ``train`` as it is).  False for an effect that cannot be silenced."""
     own = cand.components[-1]
     rest = own.effect.silenced(own.values)
     if rest is None:
         return False
-    fitted, nll = own.values, cand.nll(train)
+    fitted = own.values
     own.values = rest
     try:
         return cand.nll(train) <= nll + tol
