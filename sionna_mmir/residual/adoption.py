@@ -116,17 +116,64 @@ def _backfit(model: EffectModel, newest, maxiter: int, pool=SERIAL):
     phases, and the scatterer proposed afterwards lands off its true
     position.  Once the newer effect is in, the earlier one's data-driven
     initialisation from the cleaner residual usually finds the right basin.
-    Every earlier effect (not scene-side, not held fixed) gets one trial, in
-    chain position order; the trials are one sequence (:func:`_in_order`).
+    Every earlier effect (not scene-side, not held fixed) whose part of the
+    mean model overlaps the newest one's (:func:`_coupled`) gets one trial,
+    in chain position order; the trials are one sequence (:func:`_in_order`).
     Returns the newest component (the same object unless a trial replaced
     the list).
     """
+    coupled = _coupled(model, newest)
     plan = [("restart", c.effect) for c in model.components
-            if getattr(c.effect, "restartable", False)]
+            if getattr(c.effect, "restartable", False) and id(c) in coupled]
     plan += [("backfit", c.effect) for c in model.components
-             if c is not newest and c.effect.kind != "basis" and not _frozen(c)]
+             if c is not newest and c.effect.kind != "basis" and not _frozen(c)
+             and id(c) in coupled]
     _in_order(model, plan, model.nll(), maxiter, pool)
     return model.components[_effect_position(model, newest.effect)]
+
+
+#: an earlier effect whose part of the mean model overlaps the newest effect's
+#: by less than this (normalised inner product, :func:`_coupled`) is neither
+#: restarted nor backfitted after the newest one's adoption
+MIN_OVERLAP = 0.02
+
+
+def _coupled(model: EffectModel, newest) -> set:
+    """The ``id`` of each component that the adoption of ``newest`` may have
+    freed from a wrong basin: those whose part of the mean model (the mean
+    with minus the mean without them) overlaps ``newest``'s,
+    ``|<d_i, d_new>| / (|d_i| |d_new|) >= MIN_OVERLAP``.
+
+    An earlier effect that absorbed part of the newest one's signature
+    shares signal with it after the joint refit; one that shares none (a
+    static scatterer beside a walker, whose Doppler phases sum to ~0 over
+    the chirps; two point scatterers at separate ranges and angles) lands in
+    the same place when re-initialised, and its trial (a full refit, on
+    every chirp beside a mover) is skipped.  Effects that shape the noise or
+    spread power into the variance couple through the likelihood's weights,
+    not the mean: with either of them every component is coupled, as is any
+    component whose part is zero."""
+    comps = model.components
+    if not all(_mean_only(c.effect) and not c.effect.has_spread for c in comps):
+        return {id(c) for c in comps}
+    full = model.mean_variance_numpy()[0]
+    parts = {}
+    for c in comps:
+        every = model.components
+        model.components = [x for x in every if x is not c]
+        try:
+            parts[id(c)] = full - model.mean_variance_numpy()[0]
+        finally:
+            model.components = every
+    d = parts[id(newest)]
+    en = float(np.vdot(d, d).real)
+    out = set()
+    for c in comps:
+        di = parts[id(c)]
+        ei = float(np.vdot(di, di).real)
+        if en <= 0 or ei <= 0 or abs(np.vdot(di, d)) >= MIN_OVERLAP * np.sqrt(en * ei):
+            out.add(id(c))
+    return out
 
 
 def _position(model: EffectModel, comp) -> int:

@@ -258,8 +258,9 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     those silenced (:meth:`~sionna_mmir.effects.base.Effect.silenced`), then
     with every component, so the object's amplitude can move back from the
     mover to the scene and the leakage regrow behind the filter.  Unless
-    the candidate, fitted alone, comes to rest (silencing it changes
-    nothing beside the restored components) and the silenced components,
+    the candidate, fitted alone, comes to rest (silencing it beside the
+    restored components costs less than its parameters' BIC charge,
+    :func:`_at_rest`) and the silenced components,
     restored at their fitted values, explain the training cells better:
     then they are not what it replaces (a real walker, beside which ego
     motion finds the radar at rest), and only the candidate and they are
@@ -292,19 +293,28 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     cand.fit(cells=train, maxiter=maxiter)
 
 
-def _at_rest(cand: EffectModel, train, nll: float, tol: float = 1e-6) -> bool:
-    """Whether the last component of ``cand`` explains nothing on ``train``:
-    silenced (:meth:`~sionna_mmir.effects.base.Effect.silenced`) the NLL per
-    sample rises by at most ``tol`` nats over ``nll`` (``cand``'s NLL on
-    ``train`` as it is).  False for an effect that cannot be silenced."""
+def _at_rest(cand: EffectModel, train, nll: float) -> bool:
+    """Whether the last component of ``cand`` explains nothing on ``train``
+    worth its parameters: silenced
+    (:meth:`~sionna_mmir.effects.base.Effect.silenced`) the NLL on the ``n``
+    training samples rises by less than the BIC would charge for them,
+    ``n_params ln(n) / 2`` nats (``nll``: ``cand``'s NLL per sample on
+    ``train`` as it is).  The NLL is accumulated in single precision: a few
+    nats over a capture (``~3e-6`` per sample at ``|NLL| ~ 4``) is rounding,
+    and ego motion fitted to ``1e-5`` m/s beside the suite's walker came out
+    "moving" against a tolerance under it.  False for an effect that cannot
+    be silenced."""
     own = cand.components[-1]
     rest = own.effect.silenced(own.values)
     if rest is None:
         return False
+    cells = np.prod(cand.ctx.shape[:4]) if train is None else float(np.sum(train))
+    n = max(float(cells) * cand.ctx.shape[-1], 2.0)
+    tol = own.n_params * np.log(n) / 2 / n
     fitted = own.values
     own.values = rest
     try:
-        return cand.nll(train) <= nll + tol
+        return bool(cand.nll(train) <= nll + tol)
     finally:
         own.values = fitted
 
