@@ -147,7 +147,7 @@ def _coupled(model: EffectModel, newest) -> set:
     An earlier effect that absorbed part of the newest one's signature
     shares signal with it after the joint refit; one that shares none (a
     static scatterer beside a walker, whose Doppler phases sum to ~0 over
-    the chirps; two point scatterers at separate ranges and angles) lands in
+    the chirps) lands in
     the same place when re-initialised, and its trial (a full refit, on
     every chirp beside a mover) is skipped.  Effects that shape the noise or
     spread power into the variance couple through the likelihood's weights,
