@@ -1,10 +1,13 @@
-"""``loop`` end to end on a capture of the independent generator.
+"""``loop`` end to end on a capture of the independent generator, and its
+first adoption on a measured capture.
 
 Truth: the planted effect of :mod:`sionna_mmir.independent.undeclared` (plain
 NumPy point scatterers, clutter, exact per-pair delays; no code shared with
 the solver or the effects library).  The full suite is a comparison script
 (``comparisons/run_undeclared_suite.py``); this is its smallest case: a
 single-chip run with per-channel gains planted, a short candidate list.
+The measured case (corner_4m7, skipped without the shared data) checks
+where the first adoption's joint refit lands.
 """
 from __future__ import annotations
 

@@ -3,8 +3,9 @@ earlier adoptions, and the guard that undoes an adoption which made the
 mean model worse.
 
 The second half of :mod:`~sionna_mmir.residual.diagnosis`: :func:`_adopt`
-adds the round's best effect and refits every component jointly (on the
-chirp average where every component allows it); :func:`_backfit`
+adds the round's best effect, fits it as it was scored and then refits
+every component jointly (on the chirp average where every component allows
+it); :func:`_backfit`
 re-initialises each earlier effect against the model without it and keeps
 what lowers the NLL, with the independent trials on worker processes in an
 order that gives the result of trying them one by one (:func:`_in_order`).
