@@ -9,8 +9,10 @@ to all of them with one frequency error ``e(t)`` per slot and sample.  Per
 slot and sample the deviation from the chirp mean, ``d[r]``, is projected
 on ``g[r]``, the spectral fast-time derivative of the chirp-mean signal over
 the Rx; ``|g^H d|^2 / |g|^2`` is one white-floor variance on average for
-independent noise (``(C - 1) / C`` of it after the mean is removed) and more
-where a shared latent pushes the scatter along ``g``.  The floor is taken
+independent noise (the deviation is the package's
+:func:`~sionna_mmir.effects.library._sensor_common.chirp_deviation`, scaled
+to keep white noise's power) and more where a shared latent pushes the
+scatter along ``g``.  The floor is taken
 from the median of ``|d|^2`` (exponential: ``median = s^2 ln 2``).  Prints
 the ratio of the mean projected energy to that floor per case.
 """
@@ -20,18 +22,19 @@ import argparse
 
 import numpy as np
 
+from sionna_mmir.effects.library._sensor_common import chirp_deviation
 from sionna_mmir.independent.undeclared import make_case
 
 
 def coherent_excess(y: np.ndarray) -> float:
     """Mean ``|g^H d|^2 / |g|^2`` over slots and samples, in white-floor units.
 
-    ``y`` complex ``[F, T, R, C, N]``; ``d = y - mean_C(y)``, ``g`` the
+    ``y`` complex ``[F, T, R, C, N]`` (``C >= 2``); ``d`` the chirp deviation, ``g`` the
     fast-time derivative of ``mean_C(y)`` (unitary DFT, bins in cycles per
     sample).
     """
     mean = y.mean(axis=3, keepdims=True)
-    d = y - mean
+    d = chirp_deviation(y)
     f = np.fft.fftfreq(y.shape[-1])
     g = np.fft.ifft(2j * np.pi * f * np.fft.fft(mean, axis=-1), axis=-1)       # [F, T, R, 1, N]
     floor = np.median(np.abs(d) ** 2) / np.log(2)

@@ -200,8 +200,9 @@ class EffectModel:
         """This model on the data averaged over chirp loops (``C = 1``).
 
         Every component must commute with the average (:meth:`static_flags`),
-        so its values carry over unchanged; the normalisation (``scale``, ``base_gain``) is kept, so values fitted on
-        the averaged model mean the same on this one.  The white floor is
+        so its values carry over unchanged; the normalisation (``scale``,
+        ``base_gain``) is kept, so values fitted on the averaged model mean
+        the same on this one.  The white floor is
         re-estimated (averaging divides it by ``C``).  With ``freeze``, a
         chirp-varying component that is an additive scene effect or a
         variance effect enters as a :class:`~.frozen.FrozenPart` at its

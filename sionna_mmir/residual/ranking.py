@@ -199,9 +199,10 @@ def memory_stats(residual: np.ndarray, excess: np.ndarray, cells):
     ``residual``, complex ``[F, T, R, C, N]``, time domain) the sum of the lag-1
     products ``D_{c+1} conj(D_c)`` and of ``|D_c|^2`` of the deviation from the
     chirp mean (:func:`~sionna_mmir.effects.library._sensor_common.chirp_deviation`,
-    whose scale cancels in :func:`chirp_memory`) over the series (frame, Tx, Rx) whose chirps are all held out,
-    the candidate's predicted variance over the white floor (``excess``,
-    broadcastable to ``residual``) summed there, and the number of series;
+    whose scale cancels in :func:`chirp_memory`) over the series (frame, Tx,
+    Rx) whose chirps are all held out, the candidate's predicted variance
+    over the white floor (``excess``, broadcastable to ``residual``) summed
+    there, and the number of series;
     None with fewer than :data:`MEMORY_MIN_CHIRPS` loops or no such series."""
     C = residual.shape[3]
     full = np.all(np.asarray(cells, bool), axis=3)                  # [F, T, R]
@@ -285,8 +286,7 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     quiet = cand.nll(train)
     for c, v in zip(replaced, fitted):
         c.values = v
-    restored = cand.nll(train)
-    if restored < quiet and _has_rest(cand):
+    if _has_rest(cand) and cand.nll(train) < quiet:
         ids = {id(c) for c in replaced}
         cand.fit(trainable=[new] + [i for i, c in enumerate(cand.components) if id(c) in ids],
                  cells=train, maxiter=maxiter)
