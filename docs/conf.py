@@ -108,6 +108,23 @@ def _resolve_reexport(app, env, node, contnode):
     return None
 
 
+def _compile_numpydoc_template_once():
+    """numpydoc compiles its Jinja template anew for every docstring (about a
+    third of this build's time); the template is the same for all of them."""
+    from numpydoc import docscrape_sphinx
+
+    base, compiled = docscrape_sphinx.SandboxedEnvironment, {}
+
+    class OnceEnvironment(base):
+        def get_template(self, name, *args, **kwargs):
+            if name not in compiled:
+                compiled[name] = super().get_template(name, *args, **kwargs)
+            return compiled[name]
+
+    docscrape_sphinx.SandboxedEnvironment = OnceEnvironment
+
+
 def setup(app):
+    _compile_numpydoc_template_once()
     app.connect("autodoc-skip-member", _skip_foreign)
     app.connect("missing-reference", _resolve_reexport)

@@ -233,7 +233,7 @@ def test_13_bench_reports_both_timings_and_rejects_bad_options(tmp_path, capsys)
 
     out = tmp_path / "b.json"
     assert main(["bench", "--rays", "300", "--repeat", "1", "--max-triangles", "3000",
-                 "--out", str(out)]) == 0
+                 "--sionna-depth", "1", "--out", str(out)]) == 0
     res = json.loads(out.read_text())
     assert res["mmir_s_per_it"] > 0 and res["sionna_s_per_it"] > 0
     assert abs(res["ratio_mmir_over_sionna"] - res["mmir_s_per_it"] / res["sionna_s_per_it"]) < 1e-9

@@ -10,6 +10,8 @@ effect outside the library while localising its residual.
 """
 from __future__ import annotations
 
+import zlib
+
 import numpy as np
 import pytest
 
@@ -190,14 +192,14 @@ def _single(name):
 @pytest.mark.parametrize("truth", [_single(n) for n in sorted(SINGLE)])
 def test_01_single_effect_is_ranked_first_and_explained(truth):
     radar = _radar()
-    rng = np.random.default_rng(abs(hash(truth)) % 2 ** 32)
+    rng = np.random.default_rng(zlib.crc32(truth.encode()))   # not hash(): salted per process
     clean = _render(radar, TARGETS)
     with_effect = SINGLE[truth](radar, clean, rng)
     noise = _noise(clean.shape, rng)
     measured = with_effect + noise
     if truth == "adc_clipping":              # an ADC clips what reaches it, noise included
         measured = SINGLE[truth](radar, clean + noise, rng)
-    d = _diagnose(measured, clean, radar)
+    d = _diagnose(measured, clean, radar, max_rounds=1)
     assert d.adoptions, f"{truth}: nothing adopted; ranking {d.last_candidates}"
     ranking = [c.name for c in d.adoptions[0].candidates]
     assert ranking[0] == truth, f"{truth}: ranked {ranking[:4]}"
@@ -215,10 +217,13 @@ def test_02_clean_capture_adopts_nothing():
     assert d.adopted == [], [c.to_dict() for c in d.adoptions[0].candidates]
 
 
-@pytest.mark.parametrize("pair", [
-    ("channel_gain", "coupling"), ("iq_imbalance", "dc_offset"),
-    ("delay_offset", "missing_scatterer")])
-def test_03_pairs_of_effects_are_both_found(pair):
+@pytest.mark.parametrize("pair, rounds", [
+    # per-channel delays take the gains' phases first (both carry a phase per Tx
+    # and Rx); the gains follow in a third round
+    (("channel_gain", "coupling"), 3),
+    (("iq_imbalance", "dc_offset"), 2),
+    (("delay_offset", "missing_scatterer"), 2)])
+def test_03_pairs_of_effects_are_both_found(pair, rounds):
     radar = _radar()
     rng = np.random.default_rng(11)
     clean = _render(radar, TARGETS)
@@ -230,7 +235,7 @@ def test_03_pairs_of_effects_are_both_found(pair):
     else:
         x = SINGLE[second](radar, x, rng)
     noise = _noise(clean.shape, rng)
-    d = _diagnose(x + noise, clean, radar, max_rounds=3)
+    d = _diagnose(x + noise, clean, radar, max_rounds=rounds)
     assert set(pair) <= set(d.adopted), d.adopted
     assert d.final["residual_energy_db"] < _noise_db(x + noise, noise) + 1.5
 
