@@ -799,8 +799,8 @@ def test_28_if_filter_recovers_the_noise_notch_and_its_share():
     # the two high-pass stages are interchangeable: one at the planted corner,
     # the other switched off, far below a bin; the likelihood is flat there, so
     # where it stops depends on rounding (under 0.05 and 0.065 bins seen on two
-    # machines); under 0.1 bins it
-    # turns the nearest target's return (5.5 bins up) by under 1.1 degrees
+    # machines); under 0.1 bins it turns the nearest target's return (5.5 bins
+    # up) by under 1.1 degrees
     f_hp, f_off = sorted(10 ** np.r_[comp.values["log_fc"][0], comp.values["log_hp2"]] * 1e3,
                          reverse=True)
     assert f_hp == pytest.approx(400e3, rel=0.1)
