@@ -10,8 +10,9 @@ setup:
 demo: setup
 	$(VENV)/bin/sionna-mmir demo
 
+# one test process per core, a test file per process at a time (module fixtures built once)
 test: setup
-	$(VENV)/bin/python -m pytest -q $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest -q -n auto --dist loadfile $(PYTEST_ARGS)
 
 bench: setup
 	$(VENV)/bin/python -m pytest -q -m benchmark -s benchmarks $(PYTEST_ARGS)
