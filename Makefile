@@ -14,8 +14,9 @@ demo: setup
 test: setup
 	$(VENV)/bin/python -m pytest -q -n auto --dist loadfile $(PYTEST_ARGS)
 
+# benchmarks may run long: no per-test time limit
 bench: setup
-	$(VENV)/bin/python -m pytest -q -m benchmark -s benchmarks $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest -q -m benchmark -s --timeout 0 benchmarks $(PYTEST_ARGS)
 
 docs: setup
 	$(VENV)/bin/python -m sphinx -W --keep-going -b html docs docs/_build/html

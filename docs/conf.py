@@ -109,8 +109,8 @@ def _resolve_reexport(app, env, node, contnode):
 
 
 def _compile_numpydoc_template_once():
-    """numpydoc compiles its Jinja template anew for every docstring (about a
-    third of this build's time); the template is the same for all of them."""
+    """numpydoc compiles its Jinja template anew for every docstring (a sixth
+    of this build's time); the template is the same for all of them."""
     from numpydoc import docscrape_sphinx
 
     base, compiled = docscrape_sphinx.SandboxedEnvironment, {}
