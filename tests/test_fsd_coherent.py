@@ -203,4 +203,7 @@ def test_replay_reproduces_the_diffracted_paths():
     kw = dict(max_depth=2, num_rays=20_000, seed=1, scattering=False, fsd_coherent=True)
     p = RadarPathSolver()(scene, **kw)
     q = RadarPathSolver()(scene, samples=p.samples, **kw)
-    np.testing.assert_array_equal(p.numpy()[0], q.numpy()[0])
+    # to float32 rounding: the LLVM backend's atomic sums may add in another
+    # order from run to run (one element of 7254 one ulp apart was seen)
+    a, b = p.numpy()[0], q.numpy()[0]
+    np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-6 * np.abs(a).max())

@@ -102,9 +102,10 @@ def test_02_corner_reflectors_in_their_near_field_match_brute_force_physical_opt
     assert _dbsm(ref, R) < _closed_form_dbsm(kind, a) - 0.4          # (a near-field case)
 
 
-def test_03_facet_chain_is_independent_of_the_seed_and_replays_exactly():
+def test_03_facet_chain_is_independent_of_the_seed_and_replays():
     """The facet quadrature's chains are deterministic (no seed) and a replay
-    of their frozen samples (lit footprints, re-aimed corners) is exact."""
+    of their frozen samples (lit footprints, re-aimed corners) reproduces
+    them, to float32 rounding."""
     _, meshes = corner_po.corner_target("trihedral", 0.1, [2.0, 0.0, 0.0])
     scene = load_scene(meshes, materials={k: "metal" for k in meshes},
                        radar=RadarConfig.dense(1, 1))
@@ -112,6 +113,10 @@ def test_03_facet_chain_is_independent_of_the_seed_and_replays_exactly():
                 tx_pattern="iso", rx_pattern="iso")
     s = RadarPathSolver()
     p, q = s(scene, seed=0, **opts), s(scene, seed=5, **opts)
-    np.testing.assert_array_equal(p.numpy()[0], q.numpy()[0])
     r = s(scene, samples=list(p.samples), **opts)
-    np.testing.assert_array_equal(r.numpy()[0], p.numpy()[0])
+    # to float32 rounding: the LLVM backend's atomic sums may add in another
+    # order from run to run (in the diffraction replay test one element of
+    # 7254 came out one ulp apart)
+    a = p.numpy()[0]
+    for other in (q, r):
+        np.testing.assert_allclose(other.numpy()[0], a, rtol=1e-6, atol=1e-6 * np.abs(a).max())
