@@ -68,12 +68,15 @@ def one_iteration(model, target, seed) -> float:
 def time_interleaved(models, target, repeat):
     """Median seconds per iteration of each model and the median per-round ratio.
 
-    One warm-up iteration each (kernel compilation), then ``repeat`` rounds
-    that time one iteration of every model in turn, so load changes on a
-    shared machine hit both sides alike.
+    Two warm-up iterations each: the second iteration compiles kernels of its
+    own (with an empty Dr.Jit kernel cache Sionna RT's first two iterations
+    on a 3000-triangle hallway took 14.0 and 9.5 s, the later ones
+    0.6-0.7 s).  Then ``repeat`` rounds that time one iteration of every
+    model in turn, so load changes on a shared machine hit both sides alike.
     """
-    for m in models:
-        one_iteration(m, target, 99)
+    for seed in (98, 99):
+        for m in models:
+            one_iteration(m, target, seed)
     rounds = [[one_iteration(m, target, 100 + r) for m in models] for r in range(repeat)]
     t = np.asarray(rounds)
     return np.median(t, axis=0), float(np.median(t[:, 0] / t[:, 1]))
