@@ -182,3 +182,12 @@ def square_plate(centre, size, yaw_deg=0.0, subdiv=0):
     m.apply_transform(trimesh.transformations.rotation_matrix(np.radians(yaw_deg), [0, 0, 1]))
     m.apply_translation(centre)
     return m
+
+
+def assert_same_paths(paths, *others) -> None:
+    """Path amplitudes of ``others`` equal those of ``paths`` to float32
+    rounding (rtol 1e-6): the LLVM backend's atomic sums may add in another
+    order from run to run (one amplitude of 7254 one ulp apart was seen)."""
+    a = paths.numpy()[0]
+    for other in others:
+        np.testing.assert_allclose(other.numpy()[0], a, rtol=1e-6, atol=1e-6 * np.abs(a).max())

@@ -31,6 +31,7 @@ from sionna_mmir.scene import load_scene
 
 import corner_po
 from sionna_mmir.paths import RadarPathSolver  # noqa: E402
+from helpers import assert_same_paths  # noqa: E402
 
 C = 299_792_458.0
 F0 = 77e9
@@ -114,9 +115,4 @@ def test_03_facet_chain_is_independent_of_the_seed_and_replays():
     s = RadarPathSolver()
     p, q = s(scene, seed=0, **opts), s(scene, seed=5, **opts)
     r = s(scene, samples=list(p.samples), **opts)
-    # to float32 rounding: the LLVM backend's atomic sums may add in another
-    # order from run to run (in the diffraction replay test one element of
-    # 7254 came out one ulp apart)
-    a = p.numpy()[0]
-    for other in (q, r):
-        np.testing.assert_allclose(other.numpy()[0], a, rtol=1e-6, atol=1e-6 * np.abs(a).max())
+    assert_same_paths(p, q, r)
