@@ -470,3 +470,30 @@ def test_22_static_and_per_chirp_rendering_agree():
                            adc.Motion(ctx.radar_pos, np.eye(3), np.zeros(3)), ctx.t,
                            ctx.chirp_times)
     np.testing.assert_allclose(chirpwise, static, atol=1e-5 * np.abs(static).max())
+
+
+def test_23_waveform_variant_puts_the_corners_at_their_range(tmp_path):
+    """Another waveform of the same radar (slope, sample rate, samples): the
+    strongest corner at its range under the new slope, the run folder's
+    waveform read back as written; waveforms that cannot see the room are
+    refused."""
+    r = und.waveform_variant("awr1843", slope=6e13, sample_rate=5e6, num_samples=256)
+    nominal = und.waveform_variant("awr1843")
+    assert (r.slope, r.sample_rate, r.num_samples) == (6e13, 5e6, 256)
+    assert r.num_tx == nominal.num_tx and r.start_frequency == nominal.start_frequency
+    assert r.ramp_end_time >= r.adc_start_time + 256 / 5e6
+    c = und.make_case("missing_scatterer", radar=r)
+    c0 = und.make_case("clean", radar=r)
+    _, rng, _ = strongest(c0)
+    assert abs(np.argmax(profile(c0.capture.adc, 8)) / 8 - rng / r.range_resolution) < 0.5
+    pos = np.array(c.truth["effects"]["missing_scatterer"]["position_m"]) - r.position
+    d = c.capture.adc - c0.capture.adc
+    assert abs(np.argmax(profile(d, 8)) / 8 - np.linalg.norm(pos) / r.range_resolution) < 0.5
+    root = und.write_coloradar_run(c0, tmp_path / "run")
+    back = read_coloradar_run(root, 0, sensor="single_chip")
+    for key in ("slope", "sample_rate", "num_samples", "ramp_end_time"):
+        assert getattr(back.radar, key) == getattr(r, key), key
+    for kw, words in ((dict(slope=4e14), "maximum range"), (dict(sample_rate=1e6), "maximum range"),
+                      (dict(num_samples=0), "num_samples"), (dict(slope=-1e13), "slope")):
+        with pytest.raises(InputValueError, match=words):
+            und.waveform_variant("cascade", **kw)

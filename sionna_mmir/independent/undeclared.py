@@ -66,7 +66,7 @@ from .undeclared_io import write_coloradar_run
 from .undeclared_scene import RADAR_POSITION, build_scene
 
 __all__ = ["SuiteCase", "make_case", "suite", "iter_suite", "suite_kinds", "write_coloradar_run",
-           "coloradar_cascade", "parse_kind", "case_name", "LIBRARY_EFFECTS", "OUTSIDE_EFFECTS",
+           "coloradar_cascade", "waveform_variant", "parse_kind", "case_name", "LIBRARY_EFFECTS", "OUTSIDE_EFFECTS",
            "SCENE_MISMATCH", "FULL_PAIRS", "FAST_KINDS", "NOISE_STD_COUNTS"]
 
 #: Library effects that can be planted (names of :mod:`sionna_mmir.effects.library`).
@@ -153,6 +153,33 @@ def coloradar_cascade(num_chirps: int = 16, num_samples: int = 256) -> RadarConf
                        name="coloradar_cascade", design_frequency=76.8e9)
 
 
+def waveform_variant(radar="cascade", *, slope=None, sample_rate=None, num_samples=None,
+                     num_chirps=None) -> RadarConfig:
+    """One of the suite's radars with another waveform: the same array and
+    start frequency, a chosen slope [Hz/s], ADC sample rate [Hz], samples per
+    chirp and chirp loops (each ``None`` keeps the nominal value).  The ramp
+    is lengthened when the ADC window would outlast it (a user's waveform of
+    the same radar family, not the capture's).  Refused (InputValueError)
+    when the room (11.2 m) is beyond its maximum range or the chirp leaves
+    the band."""
+    base = _radar(radar, num_chirps, None)
+    over = {k: float(v) for k, v in (("slope", slope), ("sample_rate", sample_rate)) if v is not None}
+    if num_samples is not None:
+        if isinstance(num_samples, bool) or int(num_samples) != num_samples or num_samples < 1:
+            raise InputValueError(f"waveform_variant: num_samples must be a positive integer, "
+                                  f"got {num_samples!r}")
+        over["num_samples"] = int(num_samples)
+    fs, n = over.get("sample_rate", base.sample_rate), over.get("num_samples", base.num_samples)
+    adc_end = base.adc_start_time + n / fs
+    if adc_end > base.ramp_end_time:
+        over["ramp_end_time"] = adc_end * (1 + 1e-6)
+    try:
+        cfg = base.replace(**over)
+    except ConfigError as e:
+        raise InputValueError(f"waveform_variant: {e}") from None
+    return _radar(cfg, None, None)
+
+
 def _radar(radar, num_chirps, num_samples) -> RadarConfig:
     """The nominal radar for a ``radar`` argument (name or RadarConfig)."""
     over = {k: v for k, v in (("num_chirps", num_chirps), ("num_samples", num_samples))
@@ -175,11 +202,14 @@ def _radar(radar, num_chirps, num_samples) -> RadarConfig:
         cfg = cfg.replace(position=RADAR_POSITION, orientation=np.zeros(3))
     except ConfigError as e:
         raise InputValueError(f"make_case: {e}") from None
-    if cfg.max_range < 12.0 or cfg.slope <= 0:
+    if cfg.slope <= 0:
+        raise InputValueError(f"make_case: radar {cfg.name!r} has a falling chirp (slope "
+                              f"{cfg.slope:g} Hz/s); the suite's scenes need a rising one")
+    if cfg.max_range < 12.0:
         raise InputValueError(
             f"make_case: the room reaches 11.2 m but radar {cfg.name!r} has a maximum "
-            f"range of {cfg.max_range:.1f} m (f_s c / 2 S) or a falling chirp; use a "
-            f"waveform with f_s / S >= 8e-8 s")
+            f"range of {cfg.max_range:.1f} m (f_s c / 2 S); use a waveform with "
+            f"f_s / S >= 8e-8 s")
     return cfg
 
 
