@@ -50,10 +50,6 @@ class ChannelGain(Effect):
     stage = 1
     per_unit = True
     description = "per-Tx and per-Rx complex gain (chip LO phase, path loss)"
-    #: per-object patterns on the strongest objects mimic one gain shared by
-    #: every object; adopted first (scene mismatch before sensor effects),
-    #: they would keep it from being scored on equal terms
-    may_replace = ("object_pattern",)
 
     def param_specs(self, ctx, model, residual):
         h = channel_gains(model, model + residual)
@@ -67,10 +63,6 @@ class ChannelGain(Effect):
         amp = ops.dr.exp(ops.column(p["tx"], 0, st) + ops.column(p["rx"], 0, sr))
         g = ops.scale(ops.cis(ops.column(p["tx"], 1, st) + ops.column(p["rx"], 1, sr)), amp)
         return ops.cmul(x, g)
-
-    def silenced(self, values):
-        """Unit gain on every channel."""
-        return {k: np.zeros_like(np.asarray(v)) for k, v in values.items()}
 
     def summary(self, p, ctx):
         g = np.exp(p["tx"][:, 0][:, None] + p["rx"][:, 0][None, :]

@@ -300,10 +300,6 @@ class ObjectPattern(BasisEffect):
                                         upper=[3.0, np.inf], unit="Np, rad")
         return specs
 
-    def silenced(self, values):
-        """Every object at its rendered (unit) gain across the aperture."""
-        return {k: np.zeros_like(np.asarray(v)) for k, v in values.items()}
-
     def apply_basis(self, B, p, ctx):
         T, R = ctx.radar.num_tx, ctx.radar.num_rx
         st, sr = (1, T, 1, 1, 1), (1, 1, R, 1, 1)
