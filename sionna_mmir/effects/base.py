@@ -100,6 +100,10 @@ class Effect:
     #: start sees the model without them, and the residual loop refits them
     #: from silence beside it when it is scored and adopted
     may_replace = ()
+    #: names of adopted effects refitted together with it when it is scored
+    #: (held at their values otherwise): what already took part of its
+    #: signature without making it redundant
+    refit_beside = ()
     #: applying it commutes with averaging over chirp loops and its parameters
     #: mean the same on averaged data (a static, linear effect); the residual
     #: loop scores such candidates on chirp-averaged data

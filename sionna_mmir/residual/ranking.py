@@ -270,25 +270,29 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     let a float32 NLL's rounding decide).  Where the candidate is real the
     restored components count its objects twice and the silenced start is
     better.  An IF filter has no rest: beside it the leakage regrows in a
-    joint fit of every component (restored, a run's filter was lost).  The
-    adoption fits it the same way."""
+    joint fit of every component (restored, a run's filter was lost).
+    Components named in ``eff.refit_beside`` are fitted together with it
+    throughout (an IF filter's attenuation of the nearest targets is what
+    the base fit's object gains took).  The adoption fits it the same way."""
     new = len(cand.components) - 1
     names = set(eff.may_replace)
     replaced = [c for c in cand.components[:new] if c.effect.name in names]
+    own = [new] + [i for i, c in enumerate(cand.components[:new])
+                   if c.effect.name in set(eff.refit_beside)]
     if not replaced:
-        cand.fit(trainable=[new], cells=train, maxiter=maxiter)
+        cand.fit(trainable=own, cells=train, maxiter=maxiter)
         return
     fitted = [c.values for c in replaced]
     for c in replaced:
         c.values = c.effect.silenced(c.values) or c.values
-    cand.fit(trainable=[new], cells=train, maxiter=maxiter)
+    cand.fit(trainable=own, cells=train, maxiter=maxiter)
     silenced = [c.values for c in replaced]
     quiet = cand.nll(train)
     for c, v in zip(replaced, fitted):
         c.values = v
     if _has_rest(cand) and cand.nll(train) < quiet:
         ids = {id(c) for c in replaced}
-        cand.fit(trainable=[new] + [i for i, c in enumerate(cand.components) if id(c) in ids],
+        cand.fit(trainable=own + [i for i, c in enumerate(cand.components) if id(c) in ids],
                  cells=train, maxiter=maxiter)
         return
     for c, v in zip(replaced, silenced):

@@ -248,6 +248,10 @@ class IFFilter(Effect):
     #: leaves of it (its tones 20-40 dB down): left out of the filter's start,
     #: and refitted from zero beside it when it is scored
     may_replace = ("coupling",)
+    #: the base fit's per-object gains took its attenuation and phase at the
+    #: nearest targets (a corner 1.2 times above the high-pass corner): held
+    #: fixed, the filter would count them twice
+    refit_beside = ("object_gain",)
     description = "IF high-pass (1st order) and anti-alias low-pass (Butterworth)"
 
     def __init__(self, lowpass_order: int = 4, band_start: float = -0.1, extension: int = 32,
