@@ -253,6 +253,7 @@ def main(argv=None) -> int:
                         "with their own --out) into --out, then exit")
     args = p.parse_args(argv)
     if args.merge:
+        os.makedirs(args.out, exist_ok=True)
         rows = _previous_rows(args.out)
         for folder in args.merge:
             for row in _previous_rows(folder):
