@@ -66,8 +66,8 @@ from .undeclared_io import write_coloradar_run
 from .undeclared_scene import RADAR_POSITION, build_scene
 
 __all__ = ["SuiteCase", "make_case", "suite", "iter_suite", "suite_kinds", "write_coloradar_run",
-           "coloradar_cascade", "waveform_variant", "parse_kind", "case_name", "LIBRARY_EFFECTS", "OUTSIDE_EFFECTS",
-           "SCENE_MISMATCH", "FULL_PAIRS", "FAST_KINDS", "NOISE_STD_COUNTS"]
+           "coloradar_cascade", "waveform_variant", "parse_kind", "case_name", "LIBRARY_EFFECTS",
+           "OUTSIDE_EFFECTS", "SCENE_MISMATCH", "FULL_PAIRS", "FAST_KINDS", "NOISE_STD_COUNTS"]
 
 #: Library effects that can be planted (names of :mod:`sionna_mmir.effects.library`).
 LIBRARY_EFFECTS = ("missing_scatterer", "moving_scatterer", "multipath_ghost", "coupling",
@@ -163,7 +163,8 @@ def waveform_variant(radar="cascade", *, slope=None, sample_rate=None, num_sampl
     when the room (11.2 m) is beyond its maximum range or the chirp leaves
     the band."""
     base = _radar(radar, num_chirps, None)
-    over = {k: float(v) for k, v in (("slope", slope), ("sample_rate", sample_rate)) if v is not None}
+    over = {k: float(v) for k, v in (("slope", slope), ("sample_rate", sample_rate))
+            if v is not None}
     if num_samples is not None:
         if isinstance(num_samples, bool) or int(num_samples) != num_samples or num_samples < 1:
             raise InputValueError(f"waveform_variant: num_samples must be a positive integer, "
