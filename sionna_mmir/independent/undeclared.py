@@ -166,10 +166,7 @@ def waveform_variant(radar="cascade", *, slope=None, sample_rate=None, num_sampl
     over = {k: float(v) for k, v in (("slope", slope), ("sample_rate", sample_rate))
             if v is not None}
     if num_samples is not None:
-        if isinstance(num_samples, bool) or int(num_samples) != num_samples or num_samples < 1:
-            raise InputValueError(f"waveform_variant: num_samples must be a positive integer, "
-                                  f"got {num_samples!r}")
-        over["num_samples"] = int(num_samples)
+        over["num_samples"] = _count("waveform_variant", "num_samples", num_samples)
     fs, n = over.get("sample_rate", base.sample_rate), over.get("num_samples", base.num_samples)
     adc_end = base.adc_start_time + n / fs
     if adc_end > base.ramp_end_time:
@@ -181,13 +178,18 @@ def waveform_variant(radar="cascade", *, slope=None, sample_rate=None, num_sampl
     return _radar(cfg, None, None)
 
 
+def _count(owner: str, name: str, v) -> int:
+    """``v`` as a positive integer, else InputValueError naming ``owner`` and ``name``."""
+    if isinstance(v, bool) or int(v) != v or int(v) < 1:
+        raise InputValueError(f"{owner}: {name} must be a positive integer, got {v!r}")
+    return int(v)
+
+
 def _radar(radar, num_chirps, num_samples) -> RadarConfig:
     """The nominal radar for a ``radar`` argument (name or RadarConfig)."""
     over = {k: v for k, v in (("num_chirps", num_chirps), ("num_samples", num_samples))
             if v is not None}
-    for k, v in over.items():
-        if isinstance(v, bool) or int(v) != v or int(v) < 1:
-            raise InputValueError(f"make_case: {k} must be a positive integer, got {v!r}")
+    over = {k: _count("make_case", k, v) for k, v in over.items()}
     try:
         if isinstance(radar, RadarConfig):
             cfg = radar.replace(**over)
