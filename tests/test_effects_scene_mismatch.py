@@ -239,6 +239,7 @@ def test_08_mesh_planes_are_the_large_flat_objects_in_the_radar_frame():
     ("ObjectShift", {"shift": 1e-4}, {"shift": [[0.002, 0.01, 0.0], [0.0, 0.004, 0.001],
                                                 [0.001, 0.0, -0.002]]}),
     ("ObjectDelay", {"range": 1e-4}, {"range": [0.002, -0.003, 0.001]}),
+    ("ObjectGain", {"gain": 1e-3}, {"gain": [[0.1, 0.2], [-0.1, 0.0], [0.05, -0.3]]}),
 ])
 def test_09_pose_and_object_delay_gradients_match_finite_differences(effect, steps, start):
     """The per-pair delay effects (through the basis' pose-delay map and its
