@@ -615,6 +615,73 @@ def test_14b_ego_motion_gives_each_pair_of_a_wide_array_its_own_doppler():
     assert np.allclose(far, np.cos(np.radians(30.0)), atol=1e-4)
 
 
+def test_14c_ego_motion_moves_a_floor_return_with_its_elevation():
+    """A floor point 1.2 m away under a radar 1 m up is 56 deg below the
+    horizon: it approaches at ``v cos(az) cos(el)``, half the rate an
+    elevation-blind model gives it.  Truth: ``direct_adc`` with the exact
+    per-pair delay rates (hand geometry).  The cascade's elevation aperture
+    (its elevated Tx) fixes the elevation: error -17.3 dB of the signal
+    (under -15), against +3.2 dB (worse than no motion) with every elevation
+    taken as 0.  What is left is the far-field direction estimate at 1.2 m,
+    deep in the 17 cm aperture's near field (~2 deg of azimuth)."""
+    from sionna_mmir.effects.library import ego_motion as em
+    from sionna_mmir.independent.undeclared import coloradar_cascade
+
+    radar = coloradar_cascade(num_chirps=16, num_samples=256)
+    ctx = EffectContext(radar)
+    v = 0.77
+    p = 1.2 * unit_vectors(10.0, -56.0)[None]
+
+    def share(el):
+        d = p - el
+        return d[:, 0] / np.linalg.norm(d, axis=1)
+
+    rates = (-v * (share(radar.tx_positions)[:, None] + share(radar.rx_positions)[None])
+             / C)[:, :, None]
+    stat = direct_adc(radar, 1.0, point_target_delays(radar, p[0]))[None]
+    moved = direct_adc(radar, 1.0, point_target_delays(radar, p[0]), rates)[None]
+
+    def err_db():
+        out = _apply(EgoMotion(), stat, {"velocity": [v]}, ctx)
+        return 10 * np.log10(np.sum(np.abs(out - moved) ** 2) / np.sum(np.abs(stat) ** 2))
+
+    assert err_db() < -15.0
+    flat = em.elevation_sines
+    try:
+        em.elevation_sines = lambda Y, ctx, s_y, step=0.01: np.zeros_like(np.asarray(s_y, float))
+        em._GEOMETRY_CACHE.clear()
+        assert err_db() > 0.0
+    finally:
+        em.elevation_sines = flat
+        em._GEOMETRY_CACHE.clear()
+
+
+def test_14d_ego_motion_moves_the_independent_room():
+    """The independent generator's cascade room (corners, clutter on the
+    floor, walls and ceiling, a cabinet; :mod:`sionna_mmir.independent.undeclared`)
+    seen from the radar at rest and moving at its drawn speed (80 dB SNR,
+    8 chirps): the effect applied to the capture at rest, at the true
+    velocity, matches the moving capture within -26 dB of its energy (-27.2
+    measured); one direction per range bin leaves -20.3 dB and the atoms
+    without elevation -22.1 dB."""
+    from sionna_mmir.effects.library import ego_motion as em
+    from sionna_mmir.independent.undeclared import make_case
+
+    rest = make_case("clean", seed=0, radar="cascade", num_chirps=8, snr_db=80)
+    moving = make_case("ego_motion", seed=0, radar="cascade", num_chirps=8, snr_db=80)
+    x, y = rest.capture.frames.astype(np.complex128), moving.capture.frames.astype(np.complex128)
+    ctx = EffectContext(rest.capture.radar)
+    v = moving.truth["radar_true"]["velocity_mps"][0]
+
+    def err_db(eff):
+        out = _apply(eff, x, {"velocity": [v]}, ctx)
+        return 10 * np.log10(np.sum(np.abs(y - out) ** 2) / np.sum(np.abs(y) ** 2))
+
+    atoms, per_bin = err_db(EgoMotion()), err_db(EgoMotion(max_directions=0))
+    assert atoms < -26.0
+    assert per_bin > atoms + 5.0
+
+
 def test_15_ego_motion_recovered():
     radar = RadarConfig.awr1843(num_chirps=8)
     F, period, v = 3, 2e-3, 0.73

@@ -10,26 +10,41 @@ TDM slots and frame times included).  A delay change ``d`` multiplies a path
 ``exp(j 2 pi (f0 + S t_k) tau)`` by ``exp(j 2 pi (f0 + S t_k) d)``.
 
 The direction of the energy is taken from the current model signal ``x``
-(treated as a constant: no gradient flows through it), elevation as 0
-(``cos(theta) = cos(az)``), in two parts:
+(treated as a constant: no gradient flows through it), in two parts
+(:func:`ego_geometry`):
 
-1. when up to ``max_directions`` (default 6) dominant scatterers explain 90 %
-   of the energy of ``x`` (a few-scatterer scene): the strongest
-   peaks of its range profile, each with its channel vector ``d_j`` over the
-   virtual array (the range spectrum at the peak) and azimuth ``az_j``
-   (matched steering).  The components ``x_j = d_j (D^+ x)_j`` (``D^+`` the
-   pseudo-inverse of ``D = [d_j]``, per sample) move with the ego factor
+1. up to ``max_directions`` (default 16) **space-time atoms**: greedily, the
+   strongest peak of the range profile of what is left, refined to a
+   fractional beat frequency ``f_j``; every atom's fast-time wave
+   ``e_j[k] = exp(j 2 pi f_j k)`` and its channel vector ``d_j`` over the
+   virtual array follow from a joint least-squares fit of all waves
+   (``x_j = d_j e_j``; the coefficients are a fixed linear map of ``x``,
+   ``c_j = sum_k x[k] W[k, j]``, ``W = pinv([e_j])``).  An atom is
+   selective in range *and* angle, so another scatterer leaks onto it only
+   through its overlap in both (a channel-only projection gave clutter the
+   Doppler of the corners beside it).  Each atom moves with the ego factor
    ``c_j[t, r] = (b . u_t + b . u_r) / 2`` of each Tx-Rx pair (``u_t``,
-   ``u_r`` the unit vectors from the elements to the point at the peak's
-   range and ``az_j``; ``cos(az_j)`` in the far field, :func:`pair_cosines`),
-   whatever range bin their (sidelobe) energy is in;
+   ``u_r`` the unit vectors from the elements to the point at the atom's
+   range and direction; :func:`pair_cosines`);
 2. the rest ``x_rest = x - sum_j x_j`` moves per unitary-DFT range bin ``k``
-   with the bin's strongest azimuth ``cos(az_k)``.
+   with the boresight share ``cos(theta_k)`` of the bin's strongest
+   direction (:func:`bin_cosines`).
+
+Directions are three-dimensional where the array has an elevation aperture
+(:func:`elevation_sines`): the transverse sines ``(s_y, s_z)`` are matched
+on the virtual array (azimuth first, then elevation at that ``s_y``) and
+``cos(theta) = sqrt(1 - s_y^2 - s_z^2)``.  A floor or ceiling return far
+from the array's horizon (a floor 1.2 m away under a radar 1 m up is 56 deg
+down) moves at half the rate an elevation-blind model gives it.  Measured
+against the independent generator (:mod:`sionna_mmir.independent.undeclared`,
+its cascade room at 0.77 m/s, 80 dB SNR, the true velocity): the moved
+scene's error is -24.1 dB of the capture's energy, against -18.9 dB for six
+channel-only directions, each azimuth-only.
 
 Then::
 
     x' = [sum_j x_j e^{j 2 pi f_c rho c_j T} e^{j phi_fast c_j}
-          + IDFT(DFT(x_rest) e^{j 2 pi f_c rho cos(az_k) T}) e^{j phi_fast}]
+          + IDFT(DFT(x_rest) e^{j 2 pi f_c rho cos(theta_k) T}) e^{j phi_fast}]
     phi_fast = 2 pi [S (t_k - t_c) rho T + (f0 + S t_k) rho t_k]
 
 with ``T = T_slow[f, t, c]``: the delay advanced to the sample time
@@ -37,11 +52,13 @@ with ``T = T_slow[f, t, c]``: the delay advanced to the sample time
 fast-time terms (range migration ``S rho T`` about the centre sample
 ``t_c``, intra-chirp Doppler ``f0 rho t_k`` and ``S rho t_k^2``) of the
 remainder use ``cos(theta) = 1``.  Exact (to float32 and the direction
-estimate) for point scatterers in the chosen directions; a range bin holding
-several other directions keeps the Doppler of its strongest one.  With
+estimate) for point scatterers on the atoms; a range bin holding several
+other directions keeps the Doppler of its strongest one.  With
 ``angle_aware=False`` everything uses ``cos(theta) = 1``: the first-order
 model, exact only for near-boresight energy (relative rate error
-``1 - cos(theta)``, 10 % at 25 deg).
+``1 - cos(theta)``, 10 % at 25 deg).  The geometry of the last few inputs is
+remembered (:func:`ego_geometry`), so a fit that moves only parameters
+after ego motion computes it once.
 
 One parameter, ``velocity`` ``[1]`` [m/s], positive towards the scene
 (approaching scene, negative Doppler in :mod:`sionna_mmir.processing.doppler_fft`'s
@@ -49,7 +66,10 @@ convention).
 """
 from __future__ import annotations
 
+import collections
+import dataclasses
 import functools
+import hashlib
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -113,8 +133,42 @@ def grid_steering(ctx, step: float, az_limit: float):
     return _grid_steering(key, float(step), float(az_limit))
 
 
+def elevation_sines(Y, ctx, s_y, step: float = 0.01) -> np.ndarray:
+    """Elevation sine ``s_z [M]`` best matching the channel vectors ``Y [T R, M]``
+    whose azimuthal sines ``s_y [M]`` are known (matched steering over a grid
+    of ``s_z`` with ``s_y^2 + s_z^2 < 1``, parabolic peak).  Zeros where the
+    array has no elevation aperture or is not planar (elements off the
+    ``x = 0`` plane): there ``s_z`` is not observed or not separable."""
+    radar = ctx.radar
+    v = radar.virtual_positions().reshape(-1, 3)
+    s_y = np.asarray(s_y, np.float64)
+    if np.ptp(v[:, 2]) < 1e-6 or np.ptp(v[:, 0]) > 1e-6:
+        return np.zeros_like(s_y)
+    k = 2 * np.pi / radar.wavelength
+    grid = np.arange(-0.98, 0.98 + 1e-9, step)
+    Yy = np.exp(1j * k * np.outer(v[:, 1], s_y)) * Y                        # [TR, M]
+    logp = np.log(np.abs(np.exp(1j * k * np.outer(grid, v[:, 2])) @ Yy) ** 2 + 1e-300)
+    logp[grid[:, None] ** 2 + s_y[None] ** 2 >= 0.999] = -np.inf              # [S, M]
+    j = np.clip(np.argmax(logp, axis=0), 1, len(grid) - 2)
+    m = np.arange(len(s_y))
+    lft, mid, rgt = logp[j - 1, m], logp[j, m], logp[j + 1, m]
+    ok = np.isfinite(lft) & np.isfinite(rgt)
+    den = np.where(ok, lft - 2 * mid + rgt, 0.0)
+    off = np.clip(np.where(den < 0, 0.5 * np.where(ok, lft - rgt, 0.0) / np.where(den < 0, den, -1.0),
+                           0.0), -0.5, 0.5)
+    return grid[j] + off * step
+
+
+def _boresight_share(s_y, s_z) -> np.ndarray:
+    """``cos(theta) = sqrt(1 - s_y^2 - s_z^2)`` of a direction with transverse sines."""
+    return np.sqrt(np.clip(1.0 - np.square(s_y) - np.square(s_z), 0.0, 1.0))
+
+
 def bin_cosines(z, ctx, az_limit: float = 80.0) -> np.ndarray:
-    """``cos(az_k)`` ``[N]`` of the strongest azimuth per unitary-DFT bin of ``z [T, R, N]``."""
+    """Boresight share ``cos(theta_k)`` ``[N]`` of the strongest direction per
+    unitary-DFT bin of ``z [T, R, N]`` (azimuth by matched steering at 1 deg
+    with a parabolic peak, then elevation at that azimuthal sine:
+    :func:`elevation_sines`)."""
     T, R, N = z.shape
     Z = np.fft.fft(z, axis=-1).reshape(T * R, N)
     step = 1.0
@@ -126,7 +180,8 @@ def bin_cosines(z, ctx, az_limit: float = 80.0) -> np.ndarray:
     den = lft - 2 * mid + rgt
     off = np.clip(np.where(den < 0, 0.5 * (lft - rgt) / np.where(den < 0, den, -1.0), 0.0),
                   -0.5, 0.5)                                                 # parabolic peak
-    return np.cos(np.radians(grid[j] + off * step))
+    s_y = np.sin(np.radians(grid[j] + off * step))
+    return _boresight_share(s_y, elevation_sines(Z, ctx, s_y))
 
 
 def _beam_peak(d, ctx, az0, width):
@@ -137,68 +192,148 @@ def _beam_peak(d, ctx, az0, width):
     return float(out.x)
 
 
-def dominant_directions(z, ctx, max_dirs: int, min_share: float = 1e-3,
-                        max_corr: float = 0.95, min_explained: float = 0.9,
-                        az_limit: float = 80.0):
-    """Channel vectors of the strongest range peaks of ``z [T, R, N]``:
-    ``(az [J] deg, D [T R, J], ranges [J] m)``.
+def _peak_frequency(zr, up: int, taken=()) -> tuple:
+    """``(f [cycles / sample], power)`` of the strongest peak of the channel-summed
+    spectrum of ``zr [M, N]`` (zero-padded ``up`` times, parabolic in log power)
+    at least one bin (``1 / N``) from every frequency in ``taken``."""
+    N = zr.shape[-1]
+    L = up * N
+    P = np.sum(np.abs(np.fft.fft(zr, n=L, axis=-1)) ** 2, axis=0)
+    grid = np.arange(L) / L
+    Pm = P.copy()
+    for f in taken:
+        Pm[np.abs((grid - f + 0.5) % 1.0 - 0.5) < 1.0 / N] = 0.0
+    k = int(np.argmax(Pm))
+    lft, mid, rgt = (np.log(P[(k + i) % L] + 1e-300) for i in (-1, 0, 1))
+    den = lft - 2 * mid + rgt
+    off = float(np.clip(0.5 * (lft - rgt) / den, -0.5, 0.5)) if den < 0 else 0.0
+    return (k + off) / L, float(Pm[k])
 
-    Local maxima of the range profile (unitary-DFT bins) in decreasing power,
-    above ``min_share`` of the total, each giving its unit channel vector
-    ``d_j = Z[:, k_j] / |Z[:, k_j]|`` (the scatterer's own array response,
-    near field included) and its azimuth by matched steering; a vector that
-    correlates more than ``max_corr`` with a chosen one (same direction) is
-    skipped.  Unless the vectors explain ``min_explained`` of the energy of
-    ``z`` (a few-scatterer scene) none is returned: a partial dictionary would
-    give other directions' energy that projects on it the wrong Doppler.
-    """
+
+def space_time_atoms(z, max_atoms: int, min_share: float = 1e-4, up: int = 8):
+    """Greedy space-time atoms of ``z [T, R, N]``: ``(f [J] cycles / sample,
+    waves [J, N], W [N, J], D [T R, J])`` with ``z ~ D @ waves`` and
+    ``D = z @ W`` (``W = pinv(waves)``, the joint least-squares fit).
+
+    Each step takes the strongest peak of what the atoms so far leave, at
+    least one bin from every atom (what a point's spread of per-pair beat
+    frequencies leaves beside its atom is not another scatterer); it stops at
+    ``max_atoms`` or when that peak's energy is under ``min_share`` of
+    ``z``'s."""
     T, R, N = z.shape
-    Z = np.fft.fft(z, axis=-1).reshape(T * R, N)
-    prof = np.sum(np.abs(Z) ** 2, axis=0)
-    total = float(prof.sum())
-    peaks = np.flatnonzero((prof >= np.roll(prof, 1)) & (prof >= np.roll(prof, -1)))
-    peaks = peaks[np.argsort(prof[peaks])[::-1]]
-    grid, A = grid_steering(ctx, 0.25, az_limit)
-    az, cols, bins = [], [], []
-    for k in peaks:
-        if len(cols) >= max_dirs or total <= 0 or prof[k] < min_share * total:
+    Z = z.reshape(T * R, N)
+    total = float(np.vdot(Z, Z).real)
+    n = np.arange(N)
+    freqs, waves, W, D, rest = [], np.zeros((0, N), complex), np.zeros((N, 0), complex), \
+        np.zeros((T * R, 0), complex), Z
+    while len(freqs) < max_atoms and total > 0:
+        f, power = _peak_frequency(rest, up)
+        if power / N < min_share * total:
             break
-        d = Z[:, k] / np.linalg.norm(Z[:, k])
-        if cols and np.max(np.abs(np.conj(np.stack(cols)) @ d)) > max_corr:
-            continue
-        cols.append(d)
-        bins.append(k)
-        az.append(_beam_peak(d, ctx, grid[int(np.argmax(np.abs(np.conj(A).T @ d)))], 0.25))
-    none = np.zeros(0), np.zeros((T * R, 0), complex), np.zeros(0)
-    if not cols:
-        return none
-    D = np.stack(cols, axis=1)
-    explained = np.linalg.norm(D @ (np.linalg.pinv(D) @ Z)) ** 2 / max(total, 1e-300)
-    if explained < min_explained:          # a rich scene: a partial dictionary would mis-move
-        return none
-    return np.array(az), D, np.abs(ctx.bin_ranges[np.array(bins)])
+        freqs.append(f)
+        waves = np.exp(2j * np.pi * np.outer(freqs, n))
+        W = np.linalg.pinv(waves)
+        D = Z @ W
+        rest = Z - D @ waves
+    return np.array(freqs), waves, W, D
 
 
-def pair_cosines(ctx, az_deg, ranges) -> np.ndarray:
+def atom_directions(D, ctx, az_limit: float = 80.0) -> np.ndarray:
+    """Unit directions ``[J, 3]`` of the channel vectors ``D [T R, J]`` (azimuth by
+    far-field matched steering refined to 1e-4 deg, then elevation at that
+    azimuthal sine: :func:`elevation_sines`).  Far field: in the cascade's
+    near field (its 17 cm aperture, out to ~15 m) the azimuth of a point at
+    1.2 m comes out ~2 deg short."""
+    if D.shape[1] == 0:
+        return np.zeros((0, 3))
+    grid, A = grid_steering(ctx, 0.25, az_limit)
+    Dn = D / np.maximum(np.linalg.norm(D, axis=0), 1e-300)
+    az = np.array([_beam_peak(Dn[:, j], ctx, grid[int(np.argmax(np.abs(np.conj(A).T @ Dn[:, j])))],
+                              0.25) for j in range(D.shape[1])])
+    s_y = np.sin(np.radians(az))
+    s_z = elevation_sines(Dn, ctx, s_y)
+    return np.stack([_boresight_share(s_y, s_z), s_y, s_z], axis=-1)
+
+
+def frequency_ranges(ctx, f) -> np.ndarray:
+    """Monostatic range [m] of beat frequencies ``f`` [cycles / sample] in the IF
+    band of :meth:`~sionna_mmir.effects.context.EffectContext.band_frequencies`."""
+    radar = ctx.radar
+    fs = radar.sample_rate
+    sgn = 1.0 if radar.slope > 0 else -1.0
+    lo = -0.1 * fs
+    hz = sgn * (lo + np.mod(sgn * np.asarray(f, np.float64) * fs - lo, fs))
+    return np.abs(hz) * SPEED_OF_LIGHT / (2.0 * abs(radar.slope))
+
+
+def pair_cosines(ctx, az_deg, ranges, el_deg=0.0) -> np.ndarray:
     """Ego factor ``(b . u_t + b . u_r) / 2`` of every Tx-Rx pair for points at
-    ``ranges`` [m] and azimuths ``az_deg`` [deg] (elevation 0) from the
-    array centre, ``[J, T, R]``: ``b`` the boresight, ``u_t`` / ``u_r`` the
-    unit vectors from each Tx / Rx to the point.  A moving radar shortens
+    ``ranges`` [m], azimuths ``az_deg`` and elevations ``el_deg`` [deg] from
+    the array centre, ``[J, T, R]``: ``b`` the boresight, ``u_t`` / ``u_r``
+    the unit vectors from each Tx / Rx to the point.  A moving radar shortens
     the pair's delay at ``-v (b . u_t + b . u_r) / c``; across a wide array
     in the near field the factor varies from pair to pair (the cascade's
     16 cm aperture at 2 m: +-1.2 deg of azimuth, 0.3 rad of Doppler phase
-    over a 16-loop frame at 0.8 m/s), which one ``cos(az)`` per point misses.
+    over a 16-loop frame at 0.8 m/s), which one ``cos(theta)`` per point misses.
     """
     tx = np.asarray(ctx.radar.tx_positions, np.float64)
     rx = np.asarray(ctx.radar.rx_positions, np.float64)
     centre = 0.5 * (tx.mean(axis=0) + rx.mean(axis=0))
-    p = centre + np.asarray(ranges, np.float64)[:, None] * unit_vectors(az_deg)   # [J, 3]
+    p = centre + np.asarray(ranges, np.float64)[:, None] * unit_vectors(az_deg, el_deg)
 
     def boresight_share(el):
         d = p[:, None, :] - el[None]
         return d[..., 0] / np.linalg.norm(d, axis=-1)                              # [J, E]
 
     return 0.5 * (boresight_share(tx)[:, :, None] + boresight_share(rx)[:, None, :])
+
+
+@dataclasses.dataclass(frozen=True)
+class EgoGeometry:
+    """Where the energy of a static signal is, for :class:`EgoMotion`.
+
+    ``W [N, J]`` and ``waves [J, N]``: the space-time atoms (coefficients
+    ``x @ W``, signal ``coef * waves``); ``cos_pairs [J, T, R]``: their ego
+    factors; ``cos_bins [N]``: the rest's per-bin ``cos(theta)``;
+    ``directions [J, 3]`` and ``ranges [J]`` [m] for reports."""
+
+    W: np.ndarray
+    waves: np.ndarray
+    cos_pairs: np.ndarray
+    cos_bins: np.ndarray
+    directions: np.ndarray
+    ranges: np.ndarray
+
+
+_GEOMETRY_CACHE: "collections.OrderedDict" = collections.OrderedDict()
+_GEOMETRY_CACHE_SIZE = 8
+
+
+def ego_geometry(z, ctx, max_atoms: int) -> EgoGeometry:
+    """:class:`EgoGeometry` of the static signal ``z [T, R, N]`` (remembered for
+    the last few distinct inputs, keyed on their bytes and the array)."""
+    z = np.ascontiguousarray(z, np.complex128)
+    key = (hashlib.sha1(z.tobytes()).hexdigest(), z.shape, int(max_atoms),
+           hashlib.sha1(np.ascontiguousarray(ctx.radar.virtual_positions(), np.float64)
+                        .tobytes()).hexdigest(),
+           float(ctx.radar.wavelength), float(ctx.radar.slope), float(ctx.radar.sample_rate))
+    hit = _GEOMETRY_CACHE.get(key)
+    if hit is not None:
+        _GEOMETRY_CACHE.move_to_end(key)
+        return hit
+    T, R, N = z.shape
+    f, waves, W, D = space_time_atoms(z, max_atoms)
+    dirs = atom_directions(D, ctx)
+    ranges = frequency_ranges(ctx, f)
+    az = np.degrees(np.arctan2(dirs[:, 1], dirs[:, 0])) if len(f) else np.zeros(0)
+    el = np.degrees(np.arcsin(np.clip(dirs[:, 2], -1, 1))) if len(f) else np.zeros(0)
+    rest = (z.reshape(T * R, N) - D @ waves).reshape(T, R, N)
+    geo = EgoGeometry(W=W, waves=waves, cos_pairs=pair_cosines(ctx, az, ranges, el),
+                      cos_bins=bin_cosines(rest, ctx), directions=dirs, ranges=ranges)
+    _GEOMETRY_CACHE[key] = geo
+    while len(_GEOMETRY_CACHE) > _GEOMETRY_CACHE_SIZE:
+        _GEOMETRY_CACHE.popitem(last=False)
+    return geo
 
 
 def _slow_correlation(model, data, ctx):
@@ -260,13 +395,13 @@ def estimate_velocity(model, data, ctx, max_speed: float, max_grid: int = 20000)
     return float(out.x) if out.fun <= cost(v) else v
 
 
-def _component(x, d, dp, shape):
-    """``d (dp . x)`` over the channel axes of ``x`` (Dr.Jit): ``d``, ``dp`` complex ``[T * R]``."""
+def _atom(x, w, wave, shape):
+    """``(x @ w) * wave`` over the samples of ``x`` (Dr.Jit): ``w``, ``wave`` complex ``[N]``."""
     F, T, R, C, N = shape
-    dp = ops.tensor(dp.reshape(1, T, R, 1, 1))
-    c = ops.cmul(x, dp)
-    c = tuple(ops.view(dr.sum(dr.sum(ci, axis=1), axis=1), (F, 1, 1, C, N)) for ci in c)
-    return ops.cmul(ops.tensor(d.reshape(1, T, R, 1, 1)), c)
+    c = ops.cmul(x, ops.tensor(w.reshape(1, 1, 1, 1, N)))
+    c = tuple(ops.view(dr.sum(ops.view(ci, (F * T * R * C, N)), axis=1), (F, T, R, C, 1))
+              for ci in c)
+    return ops.cmul(c, ops.tensor(wave.reshape(1, 1, 1, 1, N)))
 
 
 class EgoMotion(Effect):
@@ -280,7 +415,9 @@ class EgoMotion(Effect):
         Doppler ``cos(theta)`` per dominant direction and per
         range bin (default), or ``cos(theta) = 1`` everywhere
     max_directions : int, optional
-        dominant scatterers moved as a whole (default 6)
+        space-time atoms (dominant scatterers) moved as a whole, each with
+        its own per-pair Doppler (default 16; 0: every range bin with its
+        strongest direction)
     """
 
     name = "ego_motion"
@@ -296,7 +433,7 @@ class EgoMotion(Effect):
     description = "radar ego motion along boresight (slow-time Doppler of the static scene)"
 
     def __init__(self, max_speed: float = 5.0, angle_aware: bool = True,
-                 max_directions: int = 6):
+                 max_directions: int = 16):
         if not np.isfinite(max_speed) or max_speed <= 0:
             raise ConfigError(f"EgoMotion: max_speed must be > 0 m/s, got {max_speed}")
         if not isinstance(angle_aware, (bool, np.bool_)):
@@ -323,21 +460,15 @@ class EgoMotion(Effect):
         if not self.angle_aware:
             return ops.cmul(x, ops.cis(ops.tensor(bins + fast) * v))
         with one_blas_thread():
-            z = static_view(ops.to_numpy(x))                                 # [T, R, N]
-            az, D, rng = dominant_directions(z, ctx, self.max_directions)
-            Dp = np.linalg.pinv(D) if len(az) else None                      # [J, T R]
-            cos_tr = pair_cosines(ctx, az, rng)                              # [J, T, R]
-            if len(az):
-                z = z - (D @ (Dp @ z.reshape(T * R, N))).reshape(T, R, N)
-            cos_k = bin_cosines(z, ctx).reshape(1, 1, 1, 1, N)
+            geo = ego_geometry(static_view(ops.to_numpy(x)), ctx, self.max_directions)
         moved, rest = None, x
-        if len(az):
-            for j in range(len(az)):
-                xj = _component(x, D[:, j], Dp[j], (F, T, R, C, N))
-                rest = (rest[0] - xj[0], rest[1] - xj[1])
-                cos_j = cos_tr[j].reshape(1, T, R, 1, 1)
-                xj = ops.cmul(xj, ops.cis(ops.tensor((bins + fast) * cos_j) * v))
-                moved = xj if moved is None else ops.cadd(moved, xj)
+        for j in range(geo.waves.shape[0]):
+            xj = _atom(x, geo.W[:, j], geo.waves[j], (F, T, R, C, N))
+            rest = (rest[0] - xj[0], rest[1] - xj[1])
+            cos_j = geo.cos_pairs[j].reshape(1, T, R, 1, 1)
+            xj = ops.cmul(xj, ops.cis(ops.tensor((bins + fast) * cos_j) * v))
+            moved = xj if moved is None else ops.cadd(moved, xj)
+        cos_k = geo.cos_bins.reshape(1, 1, 1, 1, N)
         xr = filter_rows(rest, None, [ops.cis(ops.tensor(bins * cos_k) * v)])[0]
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
         return xr if moved is None else ops.cadd(moved, xr)
