@@ -309,11 +309,33 @@ _GEOMETRY_CACHE: "collections.OrderedDict" = collections.OrderedDict()
 _GEOMETRY_CACHE_SIZE = 8
 
 
+#: the geometry is re-derived when a bin's share of the range profile moves
+#: by more than about this [dB] (bins 60 dB under the total count as -60)
+PROFILE_STEP_DB = 0.5
+
+
+def _layout_key(z) -> bytes:
+    """The static signal's range profile, quantised to :data:`PROFILE_STEP_DB`:
+    where its energy is, not its exact values."""
+    prof = np.sum(np.abs(np.fft.fft(z, axis=-1)) ** 2, axis=(0, 1))
+    share = prof / max(float(prof.sum()), 1e-300)
+    q = np.round(10 * np.log10(np.maximum(share, 1e-6)) / PROFILE_STEP_DB)
+    return q.astype(np.int16).tobytes()
+
+
 def ego_geometry(z, ctx, max_atoms: int) -> EgoGeometry:
-    """:class:`EgoGeometry` of the static signal ``z [T, R, N]`` (remembered for
-    the last few distinct inputs, keyed on their bytes and the array)."""
+    """:class:`EgoGeometry` of the static signal ``z [T, R, N]``.
+
+    Remembered for the last few layouts (:func:`_layout_key`: the range
+    profile to :data:`PROFILE_STEP_DB`, and the array): the atoms'
+    frequencies and directions and the bins' directions do not move when a
+    fit changes the amplitudes a little, and the atoms' coefficients are
+    taken from the current signal at every call (:meth:`EgoMotion.apply`).
+    A fit that moves only amplitudes, or only parameters after ego motion,
+    derives it once or a few times instead of at every evaluation; the
+    result depends on the input alone, not on the order of calls."""
     z = np.ascontiguousarray(z, np.complex128)
-    key = (hashlib.sha1(z.tobytes()).hexdigest(), z.shape, int(max_atoms),
+    key = (_layout_key(z), z.shape, int(max_atoms),
            hashlib.sha1(np.ascontiguousarray(ctx.radar.virtual_positions(), np.float64)
                         .tobytes()).hexdigest(),
            float(ctx.radar.wavelength), float(ctx.radar.slope), float(ctx.radar.sample_rate))
@@ -395,13 +417,12 @@ def estimate_velocity(model, data, ctx, max_speed: float, max_grid: int = 20000)
     return float(out.x) if out.fun <= cost(v) else v
 
 
-def _atom(x, w, wave, shape):
-    """``(x @ w) * wave`` over the samples of ``x`` (Dr.Jit): ``w``, ``wave`` complex ``[N]``."""
+def _coefficients(x, w, shape):
+    """``x @ w`` over the samples of ``x`` (Dr.Jit): ``w`` complex ``[N]``; ``[F, T, R, C, 1]``."""
     F, T, R, C, N = shape
     c = ops.cmul(x, ops.tensor(w.reshape(1, 1, 1, 1, N)))
-    c = tuple(ops.view(dr.sum(ops.view(ci, (F * T * R * C, N)), axis=1), (F, T, R, C, 1))
-              for ci in c)
-    return ops.cmul(c, ops.tensor(wave.reshape(1, 1, 1, 1, N)))
+    return tuple(ops.view(dr.sum(ops.view(ci, (F * T * R * C, N)), axis=1), (F, T, R, C, 1))
+                 for ci in c)
 
 
 class EgoMotion(Effect):
@@ -463,7 +484,8 @@ class EgoMotion(Effect):
             geo = ego_geometry(static_view(ops.to_numpy(x)), ctx, self.max_directions)
         moved, rest = None, x
         for j in range(geo.waves.shape[0]):
-            xj = _atom(x, geo.W[:, j], geo.waves[j], (F, T, R, C, N))
+            xj = ops.cmul(_coefficients(x, geo.W[:, j], (F, T, R, C, N)),
+                          ops.tensor(geo.waves[j].reshape(1, 1, 1, 1, N)))
             rest = (rest[0] - xj[0], rest[1] - xj[1])
             cos_j = geo.cos_pairs[j].reshape(1, T, R, 1, 1)
             xj = ops.cmul(xj, ops.cis(ops.tensor((bins + fast) * cos_j) * v))
