@@ -682,6 +682,28 @@ def test_14d_ego_motion_moves_the_independent_room():
     assert per_bin > atoms + 5.0
 
 
+def test_14e_ego_motion_geometry_follows_the_layout_not_the_amplitudes():
+    """The geometry (atoms, directions) is derived again when the range
+    profile moves by more than :data:`PROFILE_STEP_DB`, not when a fit
+    scales the scene by 0.1 dB; the atoms' coefficients always come from the
+    current signal, so a scaled scene moves as the scaled original does."""
+    from sionna_mmir.effects.library import ego_motion as em
+
+    radar = RadarConfig.awr1843(num_chirps=8)
+    ctx = EffectContext(radar)
+    stat = _scene(radar)[None]
+    em._GEOMETRY_CACHE.clear()
+    z = stat.mean(axis=3)[0]
+    first = em.ego_geometry(z, ctx, 16)
+    assert em.ego_geometry(z * 10 ** (0.1 / 20), ctx, 16) is first
+    other = _scene(radar, ((2.0, 0.0, 1.0), (4.2, -20.0, 0.5j), (3.1, 30.0, 0.7)))
+    assert em.ego_geometry(other.mean(axis=2), ctx, 16) is not first
+    k = 10 ** (0.1 / 20)
+    a = _apply(EgoMotion(), stat, {"velocity": [0.5]}, ctx)
+    b = _apply(EgoMotion(), stat * k, {"velocity": [0.5]}, ctx)
+    assert np.allclose(b, a * k, rtol=1e-4, atol=1e-5 * np.abs(a).max())
+
+
 def test_15_ego_motion_recovered():
     radar = RadarConfig.awr1843(num_chirps=8)
     F, period, v = 3, 2e-3, 0.73
