@@ -704,6 +704,45 @@ def test_14e_ego_motion_geometry_follows_the_layout_not_the_amplitudes():
     assert np.allclose(b, a * k, rtol=1e-4, atol=1e-5 * np.abs(a).max())
 
 
+def test_14f_ego_motion_gradients_through_the_atoms_match_finite_differences():
+    """The moved atoms are a host AD node (:class:`_MovedAtoms`): the gradient
+    of a loss with respect to the velocity and to the scene signal (a random
+    direction) against central differences of the same forward; the geometry
+    is held (the layout does not change under the steps)."""
+    radar = RadarConfig.awr1843(num_chirps=4, num_samples=64)
+    ctx = EffectContext(radar, num_frames=2, frame_period=1e-3)
+    rng = np.random.default_rng(14)
+    stat = np.broadcast_to(_scene(radar)[None], (2,) + tuple(radar.adc_shape)).copy()
+    target = _apply(EgoMotion(), stat, {"velocity": [0.43]}, ctx) \
+        + _noise(stat.shape, rng, 0.05)
+    dx = _noise(stat.shape, rng, 1e-4)
+    eff = EgoMotion()
+    from sionna_mmir.effects.library.ego_motion import _layout_key
+    from sionna_mmir.effects.library.scatterer import static_view
+    assert _layout_key(static_view(stat + dx)) == _layout_key(static_view(stat - dx)) \
+        == _layout_key(static_view(stat))
+
+    def loss(x, v):
+        out = _apply(eff, x, {"velocity": [v]}, ctx)
+        return float(np.sum(np.abs(out - target) ** 2))
+
+    xt = ops.tensor(stat)
+    vt = mi.TensorXf(np.array([0.4], np.float32))
+    dr.enable_grad(xt[0], xt[1], vt)
+    out = eff.apply(xt, {"velocity": vt}, ctx)
+    tr = ops.tensor(target)
+    L = dr.sum(dr.square(out[0] - tr[0]) + dr.square(out[1] - tr[1]), axis=None)
+    dr.backward(L)
+    g_v = float(np.asarray(dr.grad(vt))[0])
+    g_x = ops.to_numpy((dr.grad(xt[0]), dr.grad(xt[1])))
+    h = 1e-3
+    fd_v = (loss(stat, 0.4 + h) - loss(stat, 0.4 - h)) / (2 * h)
+    assert g_v == pytest.approx(fd_v, rel=0.02)
+    ad_x = float(np.sum(g_x.real * dx.real + g_x.imag * dx.imag))
+    fd_x = (loss(stat + dx, 0.4) - loss(stat - dx, 0.4)) / 2
+    assert ad_x == pytest.approx(fd_x, rel=0.02)
+
+
 def test_15_ego_motion_recovered():
     radar = RadarConfig.awr1843(num_chirps=8)
     F, period, v = 3, 2e-3, 0.73

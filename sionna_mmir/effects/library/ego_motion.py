@@ -417,12 +417,103 @@ def estimate_velocity(model, data, ctx, max_speed: float, max_grid: int = 20000)
     return float(out.x) if out.fun <= cost(v) else v
 
 
-def _coefficients(x, w, shape):
-    """``x @ w`` over the samples of ``x`` (Dr.Jit): ``w`` complex ``[N]``; ``[F, T, R, C, 1]``."""
+def _batched(a, b):
+    """``a @ b`` over the last two axes, batched over the leading ones (host)."""
+    with one_blas_thread():
+        return np.matmul(a, b)
+
+
+class _MovedAtoms(dr.CustomOp):
+    """The space-time atoms of ``x`` moved, and what they leave (AD node,
+    :meth:`EgoMotion.apply`)::
+
+        c = x W                                   [F, T, R, C, J]
+        moved = sum_j c_j e^{j v B_j} Q_j(v)      B_j = T-phase rate x cos_j[t, r]
+        rest = x - c waves                        Q_j = waves_j e^{j v q_j fast}
+
+    with ``q_j`` the pairs' mean factor of atom ``j`` in the small fast-time
+    term.  All on the host: one product per step instead of a full-size
+    sine per atom and sample in the kernel.  Adjoints
+    (``G = dL/dRe + j dL/dIm``): ``G_cS = G_moved Q^H``, ``G_c = conj(S) G_cS
+    - G_rest waves^H``, ``G_x = G_rest + G_c W^H``, ``dL/dv = Re sum
+    [j B cS conj(G_cS) + cS (G_moved^* (j q fast Q))]``.
+    """
+
+    def eval(self, re, im, v, W=None, waves=None, slow=None, fast=None, qbar=None):
+        self.W, self.waves = W, waves
+        self.slow, self.fast, self.qbar = slow, fast, qbar           # [F,T,R,C,J], [F,T,C,1,N], [J]
+        x = ops._numpy_pair(re, im)
+        self.v = float(np.asarray(v, np.float64).reshape(-1)[0])
+        self.c = _rows(x, W)                                        # [F,T,R,C,J]
+        self.S = np.exp(1j * self.v * slow)
+        self.cS = self.c * self.S
+        self.Q = self._q(self.v)                                    # [F,T,C,J,N]
+        moved = self._spread(self.cS, self.Q)
+        rest = x - _rows(self.c, waves)
+        return (*ops.tensor(moved), *ops.tensor(rest))
+
+    def _q(self, v):
+        return self.waves[None, None, None] * np.exp(1j * v * self.qbar[:, None] * self.fast)
+
+    @staticmethod
+    def _spread(cS, Q):
+        """``sum_j cS[..., j] Q[f, t, c, j, :]`` as ``[F, T, R, C, N]``."""
+        return _batched(cS.transpose(0, 1, 3, 2, 4), Q).transpose(0, 1, 3, 2, 4)
+
+    def _collect(self, G):
+        """``sum_n G[f, t, r, c, n] conj(Q[f, t, c, j, n])`` as ``[F, T, R, C, J]``."""
+        return _batched(G.transpose(0, 1, 3, 2, 4),
+                        np.conj(self.Q).transpose(0, 1, 2, 4, 3)).transpose(0, 1, 3, 2, 4)
+
+    def forward(self):
+        dx = ops._numpy_pair(self.grad_in("re"), self.grad_in("im"))
+        dv = float(np.asarray(self.grad_in("v"), np.float64).reshape(-1)[0])
+        dc = _rows(dx, self.W)
+        jq = 1j * self.qbar[:, None] * self.fast * self.Q
+        dmoved = (self._spread(dc * self.S + dv * 1j * self.slow * self.cS, self.Q)
+                  + dv * self._spread(self.cS, jq))
+        drest = dx - _rows(dc, self.waves)
+        self.set_grad_out((*ops.tensor(dmoved), *ops.tensor(drest)))
+
+    def backward(self):
+        g = self.grad_out()
+        Gm, Gr = ops._numpy_pair(g[0], g[1]), ops._numpy_pair(g[2], g[3])
+        GcS = self._collect(Gm)
+        Gc = np.conj(self.S) * GcS - _rows(Gr, np.conj(self.waves).T)
+        Gx = Gr + _rows(Gc, np.conj(self.W).T)
+        jq = 1j * self.qbar[:, None] * self.fast * self.Q
+        H = _batched(np.conj(Gm).transpose(0, 1, 3, 2, 4),
+                     jq.transpose(0, 1, 2, 4, 3)).transpose(0, 1, 3, 2, 4)
+        dv = float(np.real(np.sum(1j * self.slow * self.cS * np.conj(GcS)) + np.sum(self.cS * H)))
+        gx = ops.tensor(Gx)
+        self.set_grad_in("re", gx[0])
+        self.set_grad_in("im", gx[1])
+        self.set_grad_in("v", mi.TensorXf(np.array([dv], np.float32)))
+
+    def name(self):
+        return "MovedAtoms"
+
+
+def _rows(x: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``x @ m`` over the last axis as one 2-D product."""
+    with one_blas_thread():
+        out = x.reshape(-1, x.shape[-1]) @ m
+    return out.reshape(x.shape[:-1] + (m.shape[1],))
+
+
+def moved_atoms(x, v, geo, bins, fast, shape):
+    """``(moved, rest)`` of :class:`_MovedAtoms` for the geometry ``geo``
+    (``bins [F, T, 1, C, 1]``, ``fast [F, T, 1, C, N]``: :func:`phase_terms`)."""
     F, T, R, C, N = shape
-    c = ops.cmul(x, ops.tensor(w.reshape(1, 1, 1, 1, N)))
-    return tuple(ops.view(dr.sum(ops.view(ci, (F * T * R * C, N)), axis=1), (F, T, R, C, 1))
-                 for ci in c)
+    J = geo.waves.shape[0]
+    slow = np.broadcast_to(bins, (F, T, 1, C, 1))[..., 0][..., None] \
+        * np.transpose(geo.cos_pairs, (1, 2, 0))[None, :, :, None, :]          # [F,T,R,C,J]
+    fast_q = np.broadcast_to(fast, (F, T, 1, C, N))[:, :, 0][:, :, :, None, :]  # [F,T,C,1,N]
+    qbar = geo.cos_pairs.reshape(J, -1).mean(axis=1)
+    out = dr.custom(_MovedAtoms, x[0], x[1], v, W=geo.W, waves=geo.waves,
+                    slow=np.ascontiguousarray(slow), fast=np.ascontiguousarray(fast_q),
+                    qbar=qbar)
+    return (out[0], out[1]), (out[2], out[3])
 
 
 class EgoMotion(Effect):
@@ -483,13 +574,8 @@ class EgoMotion(Effect):
         with one_blas_thread():
             geo = ego_geometry(static_view(ops.to_numpy(x)), ctx, self.max_directions)
         moved, rest = None, x
-        for j in range(geo.waves.shape[0]):
-            xj = ops.cmul(_coefficients(x, geo.W[:, j], (F, T, R, C, N)),
-                          ops.tensor(geo.waves[j].reshape(1, 1, 1, 1, N)))
-            rest = (rest[0] - xj[0], rest[1] - xj[1])
-            cos_j = geo.cos_pairs[j].reshape(1, T, R, 1, 1)
-            xj = ops.cmul(xj, ops.cis(ops.tensor((bins + fast) * cos_j) * v))
-            moved = xj if moved is None else ops.cadd(moved, xj)
+        if geo.waves.shape[0]:
+            moved, rest = moved_atoms(x, p["velocity"], geo, bins, fast, (F, T, R, C, N))
         cos_k = geo.cos_bins.reshape(1, 1, 1, 1, N)
         xr = filter_rows(rest, None, [ops.cis(ops.tensor(bins * cos_k) * v)])[0]
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
