@@ -48,7 +48,9 @@ Then::
     phi_fast = 2 pi [S (t_k - t_c) rho T + (f0 + S t_k) rho t_k]
 
 with ``T = T_slow[f, t, c]``: the delay advanced to the sample time
-``T + t_k`` exactly (``(f0 + S t_k)(tau + rho (T + t_k))``); the small
+``T + t_k`` exactly (``(f0 + S t_k)(tau + rho (T + t_k))``; for an atom
+the fast-time factor is its pairs' mean, ``c_j`` varying by ~1e-2 over the
+cascade at 2 m times a fast-time term of ~0.3 rad); the small
 fast-time terms (range migration ``S rho T`` about the centre sample
 ``t_c``, intra-chirp Doppler ``f0 rho t_k`` and ``S rho t_k^2``) of the
 remainder use ``cos(theta) = 1``.  Exact (to float32 and the direction
@@ -56,9 +58,10 @@ estimate) for point scatterers on the atoms; a range bin holding several
 other directions keeps the Doppler of its strongest one.  With
 ``angle_aware=False`` everything uses ``cos(theta) = 1``: the first-order
 model, exact only for near-boresight energy (relative rate error
-``1 - cos(theta)``, 10 % at 25 deg).  The geometry of the last few inputs is
-remembered (:func:`ego_geometry`), so a fit that moves only parameters
-after ego motion computes it once.
+``1 - cos(theta)``, 10 % at 25 deg).  The geometry is remembered per
+layout (:func:`ego_geometry`), so a fit derives it a few times rather than
+at every evaluation; the atoms are moved in one host AD node
+(:class:`_MovedAtoms`), their fast-time term with the pairs' mean factor.
 
 One parameter, ``velocity`` ``[1]`` [m/s], positive towards the scene
 (approaching scene, negative Doppler in :mod:`sionna_mmir.processing.doppler_fft`'s
@@ -439,21 +442,19 @@ class _MovedAtoms(dr.CustomOp):
     [j B cS conj(G_cS) + cS (G_moved^* (j q fast Q))]``.
     """
 
-    def eval(self, re, im, v, W=None, waves=None, slow=None, fast=None, qbar=None):
+    def eval(self, re, im, v, W=None, waves=None, slow=None, fast=None, qbar=None,
+             x_np=None, phases=None, needs_v=True):
         self.W, self.waves = W, waves
         self.slow, self.fast, self.qbar = slow, fast, qbar           # [F,T,R,C,J], [F,T,C,1,N], [J]
-        x = ops._numpy_pair(re, im)
+        self.needs_v = needs_v
+        x = ops._numpy_pair(re, im) if x_np is None else x_np
         self.v = float(np.asarray(v, np.float64).reshape(-1)[0])
         self.c = _rows(x, W)                                        # [F,T,R,C,J]
-        self.S = np.exp(1j * self.v * slow)
+        self.S, self.Q = phases(self.v)                             # [F,T,R,C,J], [F,T,C,J,N]
         self.cS = self.c * self.S
-        self.Q = self._q(self.v)                                    # [F,T,C,J,N]
         moved = self._spread(self.cS, self.Q)
         rest = x - _rows(self.c, waves)
         return (*ops.tensor(moved), *ops.tensor(rest))
-
-    def _q(self, v):
-        return self.waves[None, None, None] * np.exp(1j * v * self.qbar[:, None] * self.fast)
 
     @staticmethod
     def _spread(cS, Q):
@@ -481,13 +482,15 @@ class _MovedAtoms(dr.CustomOp):
         GcS = self._collect(Gm)
         Gc = np.conj(self.S) * GcS - _rows(Gr, np.conj(self.waves).T)
         Gx = Gr + _rows(Gc, np.conj(self.W).T)
+        gx = ops.tensor(Gx)
+        self.set_grad_in("re", gx[0])
+        self.set_grad_in("im", gx[1])
+        if not self.needs_v:                 # the velocity is held fixed
+            return
         jq = 1j * self.qbar[:, None] * self.fast * self.Q
         H = _batched(np.conj(Gm).transpose(0, 1, 3, 2, 4),
                      jq.transpose(0, 1, 2, 4, 3)).transpose(0, 1, 3, 2, 4)
         dv = float(np.real(np.sum(1j * self.slow * self.cS * np.conj(GcS)) + np.sum(self.cS * H)))
-        gx = ops.tensor(Gx)
-        self.set_grad_in("re", gx[0])
-        self.set_grad_in("im", gx[1])
         self.set_grad_in("v", mi.TensorXf(np.array([dv], np.float32)))
 
     def name(self):
@@ -501,9 +504,30 @@ def _rows(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     return out.reshape(x.shape[:-1] + (m.shape[1],))
 
 
-def moved_atoms(x, v, geo, bins, fast, shape):
+_PHASE_CACHE: "collections.OrderedDict" = collections.OrderedDict()
+
+
+def _atom_phases(geo, slow, fast_q, qbar):
+    """``v -> (S, Q)`` of :class:`_MovedAtoms` (``S = e^{j v B}``,
+    ``Q = waves e^{j v q fast}``), remembered for the last few velocities of
+    this geometry: a fit that holds the velocity computes them once."""
+    def phases(v):
+        key = (id(geo), v)
+        hit = _PHASE_CACHE.get(key)
+        if hit is None or hit[0] is not geo:
+            S = np.exp(1j * v * slow)
+            Q = geo.waves[None, None, None] * np.exp(1j * v * qbar[:, None] * fast_q)
+            hit = _PHASE_CACHE[key] = (geo, S, Q)
+            while len(_PHASE_CACHE) > 4:
+                _PHASE_CACHE.popitem(last=False)
+        return hit[1], hit[2]
+    return phases
+
+
+def moved_atoms(x, v, geo, bins, fast, shape, x_np=None):
     """``(moved, rest)`` of :class:`_MovedAtoms` for the geometry ``geo``
-    (``bins [F, T, 1, C, 1]``, ``fast [F, T, 1, C, N]``: :func:`phase_terms`)."""
+    (``bins [F, T, 1, C, 1]``, ``fast [F, T, 1, C, N]``: :func:`phase_terms`;
+    ``x_np`` the signal as NumPy when the caller has it)."""
     F, T, R, C, N = shape
     J = geo.waves.shape[0]
     slow = np.broadcast_to(bins, (F, T, 1, C, 1))[..., 0][..., None] \
@@ -512,7 +536,8 @@ def moved_atoms(x, v, geo, bins, fast, shape):
     qbar = geo.cos_pairs.reshape(J, -1).mean(axis=1)
     out = dr.custom(_MovedAtoms, x[0], x[1], v, W=geo.W, waves=geo.waves,
                     slow=np.ascontiguousarray(slow), fast=np.ascontiguousarray(fast_q),
-                    qbar=qbar)
+                    qbar=qbar, x_np=x_np, phases=_atom_phases(geo, slow, fast_q, qbar),
+                    needs_v=bool(dr.grad_enabled(v)))
     return (out[0], out[1]), (out[2], out[3])
 
 
@@ -571,11 +596,12 @@ class EgoMotion(Effect):
         fast = np.broadcast_to(fast, (F, T, 1, C, N))
         if not self.angle_aware:
             return ops.cmul(x, ops.cis(ops.tensor(bins + fast) * v))
+        xn = ops.to_numpy(x)
         with one_blas_thread():
-            geo = ego_geometry(static_view(ops.to_numpy(x)), ctx, self.max_directions)
+            geo = ego_geometry(static_view(xn), ctx, self.max_directions)
         moved, rest = None, x
         if geo.waves.shape[0]:
-            moved, rest = moved_atoms(x, p["velocity"], geo, bins, fast, (F, T, R, C, N))
+            moved, rest = moved_atoms(x, p["velocity"], geo, bins, fast, (F, T, R, C, N), xn)
         cos_k = geo.cos_bins.reshape(1, 1, 1, 1, N)
         xr = filter_rows(rest, None, [ops.cis(ops.tensor(bins * cos_k) * v)])[0]
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
