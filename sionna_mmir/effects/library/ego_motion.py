@@ -335,8 +335,11 @@ def ego_geometry(z, ctx, max_atoms: int) -> EgoGeometry:
     fit changes the amplitudes a little, and the atoms' coefficients are
     taken from the current signal at every call (:meth:`EgoMotion.apply`).
     A fit that moves only amplitudes, or only parameters after ego motion,
-    derives it once or a few times instead of at every evaluation; the
-    result depends on the input alone, not on the order of calls."""
+    derives it once or a few times instead of at every evaluation.  Within
+    a layout the geometry is the one derived from the first signal seen
+    (in this process, among the last :data:`_GEOMETRY_CACHE_SIZE` layouts),
+    so two processes that reach a layout by different signals can differ
+    slightly; the geometry is a constant of the model (no gradient)."""
     z = np.ascontiguousarray(z, np.complex128)
     key = (_layout_key(z), z.shape, int(max_atoms),
            hashlib.sha1(np.ascontiguousarray(ctx.radar.virtual_positions(), np.float64)
