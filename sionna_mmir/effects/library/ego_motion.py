@@ -81,7 +81,8 @@ from ...errors import ConfigError
 from ...radar.config import SPEED_OF_LIGHT
 from .. import ops
 from ..base import Effect, ParamSpec
-from ._sensor_common import filter_rows
+from ..context import IF_BAND_START
+from ._sensor_common import _rows_times as _rows, filter_rows
 from .scatterer import one_blas_thread, single_blas, static_view, unit_vectors
 
 dr, mi = ops.dr, ops.mi
@@ -195,22 +196,16 @@ def _beam_peak(d, ctx, az0, width):
     return float(out.x)
 
 
-def _peak_frequency(zr, up: int, taken=()) -> tuple:
+def _peak_frequency(zr, up: int) -> tuple:
     """``(f [cycles / sample], power)`` of the strongest peak of the channel-summed
-    spectrum of ``zr [M, N]`` (zero-padded ``up`` times, parabolic in log power)
-    at least one bin (``1 / N``) from every frequency in ``taken``."""
-    N = zr.shape[-1]
-    L = up * N
+    spectrum of ``zr [M, N]`` (zero-padded ``up`` times, parabolic in log power)."""
+    L = up * zr.shape[-1]
     P = np.sum(np.abs(np.fft.fft(zr, n=L, axis=-1)) ** 2, axis=0)
-    grid = np.arange(L) / L
-    Pm = P.copy()
-    for f in taken:
-        Pm[np.abs((grid - f + 0.5) % 1.0 - 0.5) < 1.0 / N] = 0.0
-    k = int(np.argmax(Pm))
+    k = int(np.argmax(P))
     lft, mid, rgt = (np.log(P[(k + i) % L] + 1e-300) for i in (-1, 0, 1))
     den = lft - 2 * mid + rgt
     off = float(np.clip(0.5 * (lft - rgt) / den, -0.5, 0.5)) if den < 0 else 0.0
-    return (k + off) / L, float(Pm[k])
+    return (k + off) / L, float(P[k])
 
 
 def space_time_atoms(z, max_atoms: int, min_share: float = 1e-4, up: int = 8):
@@ -264,7 +259,7 @@ def frequency_ranges(ctx, f) -> np.ndarray:
     radar = ctx.radar
     fs = radar.sample_rate
     sgn = 1.0 if radar.slope > 0 else -1.0
-    lo = -0.1 * fs
+    lo = IF_BAND_START * fs
     hz = sgn * (lo + np.mod(sgn * np.asarray(f, np.float64) * fs - lo, fs))
     return np.abs(hz) * SPEED_OF_LIGHT / (2.0 * abs(radar.slope))
 
@@ -500,22 +495,19 @@ class _MovedAtoms(dr.CustomOp):
         return "MovedAtoms"
 
 
-def _rows(x: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """``x @ m`` over the last axis as one 2-D product."""
-    with one_blas_thread():
-        out = x.reshape(-1, x.shape[-1]) @ m
-    return out.reshape(x.shape[:-1] + (m.shape[1],))
-
-
 _PHASE_CACHE: "collections.OrderedDict" = collections.OrderedDict()
 
 
 def _atom_phases(geo, slow, fast_q, qbar):
     """``v -> (S, Q)`` of :class:`_MovedAtoms` (``S = e^{j v B}``,
     ``Q = waves e^{j v q fast}``), remembered for the last few velocities of
-    this geometry: a fit that holds the velocity computes them once."""
+    this geometry and these time terms (one geometry serves models of the
+    same array with other chirp counts or frames): a fit that holds the
+    velocity computes them once."""
+    times = hashlib.sha1(slow.tobytes() + fast_q.tobytes()).digest()
+
     def phases(v):
-        key = (id(geo), v)
+        key = (id(geo), times, v)
         hit = _PHASE_CACHE.get(key)
         if hit is None or hit[0] is not geo:
             S = np.exp(1j * v * slow)
