@@ -707,6 +707,7 @@ def test_20_a_mean_candidate_must_lower_the_held_out_residual_energy():
 
     class Tiers:
         model = type("M", (), {"ctx": type("X", (), {"shape": (1, 3, 4, 8, 64)})()})()
+        work = model
 
         def __init__(self, scores):
             self.scores = scores
@@ -943,3 +944,103 @@ def test_23_only_effects_that_share_signal_with_the_newest_are_backfitted():
     gain.values = {"tx": gain.values["tx"] + 0.1, "rx": gain.values["rx"]}
     assert _coupled(m, gain) == {id(c) for c in m.components}
 
+
+
+def _residual_power(m) -> float:
+    return float(np.mean(np.abs(m.residual()) ** 2)) * m.scale ** 2
+
+
+def _residual_at(ctx, y, stat, v) -> float:
+    """Residual power of ego motion held at the planted velocity ``v`` (the
+    model's own floor on these targets: its far-field directions), nuisance fitted."""
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+
+    m = EffectModel(ctx, y, stat)
+    m.add(EgoMotion()).values["velocity"] = np.array([v])
+    m.fit(trainable=[])
+    return _residual_power(m)
+
+
+def test_24_a_chirp_subset_is_the_first_loops_of_the_full_model():
+    """A radar approaching at 0.73 m/s over two frames of 16 chirp loops
+    (truth: hand delay rates, ``direct_adc``), with ego motion and a channel
+    gain adopted: the model has no chirp-averaged counterpart, so a round
+    scores on the first :data:`SUBSET_CHIRPS` loops.  The subset's mean is
+    the full mean's first loops (the loops keep their ramp starts, frame by
+    frame); ego motion fitted on the subset alone lands on the planted
+    velocity, and those values leave the full data's residual where the planted
+    velocity leaves it."""
+    from test_effects_scene import _moving_frames
+
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+    from sionna_mmir.residual.ranking import SUBSET_CHIRPS, _Tiers
+
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    F, period, v = 2, 2e-3, 0.73
+    ctx = EffectContext(radar, num_frames=F, frame_period=period)
+    stat, mov = _moving_frames(radar, F, period, v)
+    noise = _noise(mov.shape, 0.01, 31)
+    m = EffectModel(ctx, mov + noise, stat)
+    ego = m.add(EgoMotion())
+    m.add(ChannelGain())
+    assert not m.can_average()
+    ego.values["velocity"] = np.array([0.6])
+    sub = m.chirp_subset(SUBSET_CHIRPS)
+    assert sub.ctx.shape == (F, 3, 4, SUBSET_CHIRPS, 64) and m.chirp_subset(16) is m
+    full_mean = m.mean_variance_numpy()[0]
+    assert np.allclose(sub.mean_variance_numpy()[0], full_mean[:, :, :, :SUBSET_CHIRPS],
+                       atol=1e-5 * np.abs(full_mean).max())
+    sub.fit(maxiter=150)
+    fitted = sub.components[0].values["velocity"][0]
+    assert fitted == pytest.approx(v, abs=0.01)
+    assert m.components[0].values["velocity"][0] == 0.6           # the full model's own values
+    for c, s in zip(m.components, sub.components):
+        c.values = s.values
+    m.nuisance.values = sub.nuisance.values
+    assert _residual_power(m) < 1.01 * _residual_at(ctx, mov + noise, stat, v)
+    tiers = _Tiers(m, 3, 0, "auto")
+    assert tiers.work.ctx.shape[3] == SUBSET_CHIRPS and tiers.avg is tiers.work
+    with pytest.raises(Exception, match="k must be"):
+        m.chirp_subset(0)
+
+
+def test_25_an_adoption_that_leaves_no_chirp_average_is_fitted_on_a_subset():
+    """Ego motion adopted on 16 chirp loops (truth as in test 24): its fit and
+    backfitting run on the first :data:`SUBSET_CHIRPS` loops, then every
+    component is refitted jointly on every chirp; a static point adopted
+    after it is fitted on the subset too (no chirp average exists beside ego
+    motion), and a noise model on every chirp.  The full model ends at the
+    planted velocity, its residual where the planted velocity leaves it."""
+    from test_effects_scene import _moving_frames
+
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+    from sionna_mmir.residual.adoption import _adopt, _work_model
+    from sionna_mmir.residual.ranking import SUBSET_CHIRPS
+
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    F, period, v = 1, 0.0, 0.73
+    ctx = EffectContext(radar, num_frames=F, frame_period=period)
+    stat, mov = _moving_frames(radar, F, period, v)
+    m = EffectModel(ctx, mov + _noise(mov.shape, 0.01, 32), stat)
+    m.fit(trainable=[])
+    assert _work_model(m, MissingScatterer()).ctx.shape[3] == 1          # the chirp average
+    assert _work_model(m, EgoMotion()).ctx.shape[3] == SUBSET_CHIRPS
+    shapes = []
+    real_fit = EffectModel.fit
+
+    def fit(self, *a, **k):
+        shapes.append(self.ctx.shape[3])
+        return real_fit(self, *a, **k)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(EffectModel, "fit", fit)
+    try:
+        comp = _adopt(m, EgoMotion(), 100)
+    finally:
+        mp.undo()
+    assert set(shapes[:-1]) == {SUBSET_CHIRPS} and shapes[-1] == 16, shapes
+    assert comp is m.components[-1]
+    assert comp.values["velocity"][0] == pytest.approx(v, abs=0.01)
+    assert _residual_power(m) < 1.01 * _residual_at(ctx, m.y * m.scale, stat, v)
+    assert _work_model(m, MissingScatterer()).ctx.shape[3] == SUBSET_CHIRPS
+    assert _work_model(m, NoiseFloor()) is m

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from ..effects.model import Component as _Component, EffectModel
-from .ranking import _averaged_scoring, _fit_candidate, _mean_only
+from .ranking import SUBSET_CHIRPS, _averaged_scoring, _fit_candidate, _mean_only
 from .workers import SERIAL
 
 
@@ -224,8 +224,7 @@ def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
     chirp-varying residual to the next mover.  ``clock`` (a dict) collects
     the seconds of the stages (``joint``, ``backfit``, ``carry_back``).
     Returns the new component."""
-    static = _averaged_scoring(eff, model) and model.can_average()
-    work = model.chirp_averaged(freeze=True) if static else model
+    work = _work_model(model, eff)
     comp = work.add(copy.deepcopy(eff))
     if eff.kind == "variance" and work.ctx.shape[3] > 1:
         with _timed(clock, "joint"):
@@ -242,8 +241,24 @@ def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
             comp = _backfit(work, comp, maxiter, pool)
     if work is not model:                   # the values carry over
         with _timed(clock, "carry_back"):
-            comp = _carry_back(model, work, comp, maxiter)
+            comp = _carry_back(model, work, comp, maxiter,
+                               joint=work.ctx.shape[3] > 1)
     return comp
+
+
+def _work_model(model, eff):
+    """The model ``eff`` is adopted on: the chirp average (``freeze``) when
+    ``eff`` is scored there and the model has one; the first
+    :data:`~.ranking.SUBSET_CHIRPS` chirp loops when the model with ``eff``
+    has no chirp-averaged counterpart (ego motion, a clipping behind a
+    mover: every fit after it would run on every chirp), except for a noise
+    model (fitted once, to the scatter of every chirp); the full model
+    otherwise."""
+    if _averaged_scoring(eff, model) and model.can_average():
+        return model.chirp_averaged(freeze=True)
+    if eff.kind != "variance" and not model.can_average(eff):
+        return model.chirp_subset(SUBSET_CHIRPS)
+    return model
 
 
 def _fit_noise_model(model, comp, maxiter) -> None:
