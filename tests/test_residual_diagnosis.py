@@ -1044,3 +1044,32 @@ def test_25_an_adoption_that_leaves_no_chirp_average_is_fitted_on_a_subset():
     assert _residual_power(m) < 1.01 * _residual_at(ctx, m.y * m.scale, stat, v)
     assert _work_model(m, MissingScatterer()).ctx.shape[3] == SUBSET_CHIRPS
     assert _work_model(m, NoiseFloor()) is m
+
+
+def test_26_beside_ego_motion_a_static_adoption_backfits_only_what_it_overlaps():
+    """Test 23's scene (a static point the scene lacks, a walker) with ego
+    motion adopted: the model has no chirp average, the trials would run on
+    several chirp loops, so after the static point only the effects whose
+    part of the mean overlaps the point's are backfitted (not the walker);
+    without ego motion, after a static effect every one is."""
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.residual.adoption import _coupled
+
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    clean = _clean(radar)
+    static = synthesize_adc(radar, np.array([0.8]), np.array([2 * 2.6 / C]))[None]
+    t = radar.chirp_start_times()[None, :, None, :, None]
+    walker = synthesize_adc(radar, np.array([0.3]), np.array([2 * 3.1 / C]))[None] * np.exp(
+        4j * np.pi * radar.start_frequency * 1.0 * t / C)
+    m = EffectModel(EffectContext(radar), clean + static + walker + _noise(clean.shape, 0.03, 4),
+                    clean)
+    mover = m.add(MovingScatterer())
+    m.fit(maxiter=150)
+    point = m.add(MissingScatterer())
+    m.fit(maxiter=150)
+    assert _coupled(m, point) == {id(c) for c in m.components}
+    ego = m.add(EgoMotion())                    # initialised from these data: the radar is at rest
+    m.components = [ego, mover, point]
+    assert not m.can_average()
+    assert _coupled(m, point) == {id(ego), id(point)}

@@ -157,13 +157,16 @@ def _coupled(model: EffectModel, newest) -> set:
 
     Applied after an effect that varies from chirp to chirp (a mover), where
     every trial is a fit on every chirp and the Doppler phases make the
-    test sharp.  After a chirp-static effect the trials run on the chirp
+    test sharp, and after any effect in a model without a chirp average
+    (beside ego motion the trials run on several chirp loops).  After a
+    chirp-static effect in a model with one the trials run on the chirp
     average at a fraction of the cost and every one is tried: an earlier fit
     can sit in a wrong basin that the joint refit leaves sharing little with
     the newest effect (gated after static effects too, the AWR1843 coupling
     + IF-filter run lost its filter)."""
     comps = model.components
-    if getattr(newest.effect, "chirp_static", True) or model.ctx.shape[3] < 2 \
+    if (getattr(newest.effect, "chirp_static", True) and model.can_average()) \
+            or model.ctx.shape[3] < 2 \
             or not all(_mean_only(c.effect) and not c.effect.has_spread for c in comps):
         return {id(c) for c in comps}
     full = model.mean_variance_numpy()[0]
