@@ -243,52 +243,12 @@ class EffectModel:
                                                                  1e-12))])
         return new
 
-    def chirp_subset(self, k: int) -> "EffectModel":
-        """This model on the first ``k`` chirp loops of every frame.
-
-        Unlike :meth:`chirp_averaged` it holds for every component: the
-        loops keep their ramp starts (:attr:`~.context.EffectContext.slow_time`
-        of the first ``k`` loops), so a chirp-varying effect (ego motion, a
-        mover, a clipping behind it) sees the same times as on the full data
-        and its values mean the same on both.  Normalisation and noise floor
-        are kept.  For fitting and scoring where every chirp would be costly:
-        ``k / C`` of the work, the same samples per cell and the same Doppler
-        phases per loop (contiguous loops: no slow-time aliasing).  Returns
-        ``self`` when ``k >= C``.
-        """
-        C = self.ctx.shape[3]
-        k = int(k)
-        if k < 1:
-            raise InputValueError(f"chirp_subset: k must be >= 1, got {k}")
-        if k >= C:
-            return self
-        basis = self.ctx.basis
-        if basis is not None:
-            basis = dataclasses.replace(basis, adc=np.ascontiguousarray(basis.adc[:, :, :, :k]))
-            basis.current_shares = getattr(self.ctx.basis, "current_shares", None)
-        ctx = dataclasses.replace(self.ctx, radar=self.ctx.radar.replace(num_chirps=k),
-                                  basis=basis)
-        new = object.__new__(EffectModel)
-        new.__dict__.update(self.__dict__)
-        new.ctx = ctx
-        new.y = np.ascontiguousarray(self.y[:, :, :, :k])
-        new.b = np.ascontiguousarray(self.b[:, :, :, :k])
-        new.Y_numpy = np.ascontiguousarray(self.Y_numpy[:, :, :, :k])
-        new.Y = ops.tensor(new.Y_numpy)
-        new.y_t = ops.tensor(new.y)
-        new.b_t = ops.tensor(new.b)
-        new.basis_t = new._basis_tensors()
-        new.nuisance = self.nuisance.copy()
-        new.components = [c.copy() for c in self.components]
-        return new
-
-    def can_average(self, extra=None) -> bool:
-        """Whether :meth:`chirp_averaged` with ``freeze=True`` can represent this
-        model (with the effect ``extra`` added, when given)."""
+    def can_average(self) -> bool:
+        """Whether :meth:`chirp_averaged` with ``freeze=True`` can represent this model."""
         from .frozen import averageable
 
-        effects = [c.effect for c in self.components] + ([extra] if extra is not None else [])
-        return all(s or averageable(e) for e, s in zip(effects, self.static_flags(extra)))
+        return all(s or averageable(c.effect)
+                   for c, s in zip(self.components, self.static_flags()))
 
     def static_flags(self, extra=None) -> list:
         """Per component (and for ``extra``, an effect to be added, last):

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from ..effects.model import Component as _Component, EffectModel
-from .ranking import SUBSET_CHIRPS, _averaged_scoring, _fit_candidate, _mean_only
+from .ranking import _averaged_scoring, _fit_candidate, _mean_only
 from .workers import SERIAL
 
 
@@ -157,16 +157,13 @@ def _coupled(model: EffectModel, newest) -> set:
 
     Applied after an effect that varies from chirp to chirp (a mover), where
     every trial is a fit on every chirp and the Doppler phases make the
-    test sharp, and after any effect in a model without a chirp average
-    (beside ego motion the trials run on several chirp loops).  After a
-    chirp-static effect in a model with one the trials run on the chirp
+    test sharp.  After a chirp-static effect the trials run on the chirp
     average at a fraction of the cost and every one is tried: an earlier fit
     can sit in a wrong basin that the joint refit leaves sharing little with
     the newest effect (gated after static effects too, the AWR1843 coupling
     + IF-filter run lost its filter)."""
     comps = model.components
-    if (getattr(newest.effect, "chirp_static", True) and model.can_average()) \
-            or model.ctx.shape[3] < 2 \
+    if getattr(newest.effect, "chirp_static", True) or model.ctx.shape[3] < 2 \
             or not all(_mean_only(c.effect) and not c.effect.has_spread for c in comps):
         return {id(c) for c in comps}
     full = model.mean_variance_numpy()[0]
@@ -227,7 +224,8 @@ def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
     chirp-varying residual to the next mover.  ``clock`` (a dict) collects
     the seconds of the stages (``joint``, ``backfit``, ``carry_back``).
     Returns the new component."""
-    work = _work_model(model, eff)
+    static = _averaged_scoring(eff, model) and model.can_average()
+    work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
     if eff.kind == "variance" and work.ctx.shape[3] > 1:
         with _timed(clock, "joint"):
@@ -244,24 +242,8 @@ def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
             comp = _backfit(work, comp, maxiter, pool)
     if work is not model:                   # the values carry over
         with _timed(clock, "carry_back"):
-            comp = _carry_back(model, work, comp, maxiter,
-                               joint=work.ctx.shape[3] > 1)
+            comp = _carry_back(model, work, comp, maxiter)
     return comp
-
-
-def _work_model(model, eff):
-    """The model ``eff`` is adopted on: the chirp average (``freeze``) when
-    ``eff`` is scored there and the model has one; the first
-    :data:`~.ranking.SUBSET_CHIRPS` chirp loops when the model with ``eff``
-    has no chirp-averaged counterpart (ego motion, a clipping behind a
-    mover: every fit after it would run on every chirp), except for a noise
-    model (fitted once, to the scatter of every chirp); the full model
-    otherwise."""
-    if _averaged_scoring(eff, model) and model.can_average():
-        return model.chirp_averaged(freeze=True)
-    if eff.kind != "variance" and not model.can_average(eff):
-        return model.chirp_subset(SUBSET_CHIRPS)
-    return model
 
 
 def _fit_noise_model(model, comp, maxiter) -> None:

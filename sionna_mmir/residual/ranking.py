@@ -473,14 +473,6 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
     return sorted(out, key=lambda c: c.score, reverse=True)
 
 
-#: chirp loops a round fits and scores on when the model has no chirp-averaged
-#: counterpart (ego motion; an ADC clipping behind a mover): the first loops
-#: of every frame (:meth:`~sionna_mmir.effects.model.EffectModel.chirp_subset`),
-#: contiguous so a mover's or the radar's Doppler phase is not aliased; the
-#: adoption's joint refit then runs on every chirp (:mod:`.adoption`)
-SUBSET_CHIRPS = 4
-
-
 class _Tiers:
     """The models candidates are scored on: the chirp-averaged model for the
     chirp-static candidates (as many nats from a fraction of the data;
@@ -488,20 +480,15 @@ class _Tiers:
     cross-validation folds.  Adopted chirp-varying components enter the
     averaged model at their current values
     (:class:`~sionna_mmir.effects.frozen.FrozenPart`: a mover's averaged
-    path, a noise effect's averaged variance).  When one of them has no
-    averaged counterpart (ego motion; ADC clipping behind a chirp-varying
-    mean effect) every candidate is scored on the first
-    :data:`SUBSET_CHIRPS` chirp loops instead (:attr:`work`), all on one
-    scale."""
+    path, a noise effect's averaged variance); the full model is used for
+    every candidate only when one of them has no averaged counterpart
+    (ego motion; ADC clipping behind a chirp-varying mean effect)."""
 
     def __init__(self, model, folds, seed, groups, pool=SERIAL):
         self.model, self.pool = model, pool
-        if model.can_average():
-            self.work, self.avg = model, model.chirp_averaged(freeze=True)
-        else:
-            self.work = self.avg = model.chirp_subset(SUBSET_CHIRPS)
-        self.folds = _folds(self.work.ctx.shape[:4], folds, seed, groups)[0]
-        self.avg_folds = (self.folds if self.avg is self.work
+        self.avg = model.chirp_averaged(freeze=True) if model.can_average() else model
+        self.folds = _folds(model.ctx.shape[:4], folds, seed, groups)[0]
+        self.avg_folds = (self.folds if self.avg is model
                           else _folds(self.avg.ctx.shape[:4], folds, seed, groups)[0])
         self.scores = {}
 
@@ -511,7 +498,7 @@ class _Tiers:
         fast = [c for c in todo if _averaged_scoring(c, self.model)]
         slow = [c for c in todo if not _averaged_scoring(c, self.model)]
         groups = [(m, cands, f) for m, cands, f in ((self.avg, fast, self.avg_folds),
-                                                    (self.work, slow, self.folds)) if cands]
+                                                    (self.model, slow, self.folds)) if cands]
         for out in rank_groups(groups, penalty, maxiter, progress, self.pool):
             self.scores.update((c.name, c) for c in out)
         return sorted((self.scores[c.name] for c in candidates), key=lambda c: c.score,
@@ -528,14 +515,14 @@ class _Tiers:
         when the best was scored with the split likelihood, whose mean part
         is on the chirp average's scale already: :func:`_split_scored`)."""
         effects = {c.name: c for c in pool}
-        if self.avg is self.work or _averaged_scoring(effects[best.name], self.model) \
+        if self.avg is self.model or _averaged_scoring(effects[best.name], self.model) \
                 or _split_scored(effects[best.name], self.model):
             return ranking, best
         rival = next((c for c in ranking
                       if ok(c) and _averaged_scoring(effects[c.name], self.model)), None)
         if rival is None:
             return ranking, best
-        (again,) = rank_candidates(self.work, [effects[rival.name]], self.folds, penalty,
+        (again,) = rank_candidates(self.model, [effects[rival.name]], self.folds, penalty,
                                    maxiter, progress, self.pool)
         # its gain floor stays judged on the chirp average, where it is set
         again = dataclasses.replace(again, gain_per_sample=rival.gain_per_sample)
@@ -652,7 +639,7 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
     def ok(c):
         variance = kinds_of.get(c.name) == "variance"
         stationary = not variance or (c.slot_share >= required_slot_share(
-            int(np.prod(tiers.work.ctx.shape[:4])) // tiers.work.ctx.shape[2])
+            int(np.prod(tiers.model.ctx.shape[:4])) // tiers.model.ctx.shape[2])
             and c.chirp_memory <= c.memory_limit)
         predicts_mean = c.name not in mean_only or c.energy_change_db <= 0.0
         least = max(floor.get(c.name, min_gain), c.gain_floor)
