@@ -155,12 +155,18 @@ def elevation_sines(Y, ctx, s_y, step: float = 0.01) -> np.ndarray:
     logp[grid[:, None] ** 2 + s_y[None] ** 2 >= 0.999] = -np.inf              # [S, M]
     j = np.clip(np.argmax(logp, axis=0), 1, len(grid) - 2)
     m = np.arange(len(s_y))
-    lft, mid, rgt = logp[j - 1, m], logp[j, m], logp[j + 1, m]
+    return grid[j] + _parabolic_offset(logp[j - 1, m], logp[j, m], logp[j + 1, m]) * step
+
+
+def _parabolic_offset(lft, mid, rgt) -> np.ndarray:
+    """Offset in ``[-0.5, 0.5]`` samples of the vertex of the parabola through
+    three equally spaced values (log powers) around a peak; 0 where they do
+    not curve down or a neighbour is not finite (outside the search range)."""
+    lft, mid, rgt = (np.asarray(a, np.float64) for a in (lft, mid, rgt))
     ok = np.isfinite(lft) & np.isfinite(rgt)
     den = np.where(ok, lft - 2 * mid + rgt, 0.0)
-    off = np.clip(np.where(den < 0, 0.5 * np.where(ok, lft - rgt, 0.0) / np.where(den < 0, den, -1.0),
-                           0.0), -0.5, 0.5)
-    return grid[j] + off * step
+    num = np.where(ok, lft - rgt, 0.0)
+    return np.clip(np.where(den < 0, 0.5 * num / np.where(den < 0, den, -1.0), 0.0), -0.5, 0.5)
 
 
 def _boresight_share(s_y, s_z) -> np.ndarray:
@@ -180,10 +186,7 @@ def bin_cosines(z, ctx, az_limit: float = 80.0) -> np.ndarray:
     logp = np.log(np.abs(np.conj(A).T @ Z) ** 2 + 1e-300)                   # [A, N]
     j = np.clip(np.argmax(logp, axis=0), 1, len(grid) - 2)
     n = np.arange(N)
-    lft, mid, rgt = logp[j - 1, n], logp[j, n], logp[j + 1, n]
-    den = lft - 2 * mid + rgt
-    off = np.clip(np.where(den < 0, 0.5 * (lft - rgt) / np.where(den < 0, den, -1.0), 0.0),
-                  -0.5, 0.5)                                                 # parabolic peak
+    off = _parabolic_offset(logp[j - 1, n], logp[j, n], logp[j + 1, n])
     s_y = np.sin(np.radians(grid[j] + off * step))
     return _boresight_share(s_y, elevation_sines(Z, ctx, s_y))
 
@@ -202,9 +205,7 @@ def _peak_frequency(zr, up: int) -> tuple:
     L = up * zr.shape[-1]
     P = np.sum(np.abs(np.fft.fft(zr, n=L, axis=-1)) ** 2, axis=0)
     k = int(np.argmax(P))
-    lft, mid, rgt = (np.log(P[(k + i) % L] + 1e-300) for i in (-1, 0, 1))
-    den = lft - 2 * mid + rgt
-    off = float(np.clip(0.5 * (lft - rgt) / den, -0.5, 0.5)) if den < 0 else 0.0
+    off = float(_parabolic_offset(*(np.log(P[(k + i) % L] + 1e-300) for i in (-1, 0, 1))))
     return (k + off) / L, float(P[k])
 
 
@@ -213,11 +214,10 @@ def space_time_atoms(z, max_atoms: int, min_share: float = 1e-4, up: int = 8):
     waves [J, N], W [N, J], D [T R, J])`` with ``z ~ D @ waves`` and
     ``D = z @ W`` (``W = pinv(waves)``, the joint least-squares fit).
 
-    Each step takes the strongest peak of what the atoms so far leave, at
-    least one bin from every atom (what a point's spread of per-pair beat
-    frequencies leaves beside its atom is not another scatterer); it stops at
-    ``max_atoms`` or when that peak's energy is under ``min_share`` of
-    ``z``'s."""
+    Each step takes the strongest peak of what the atoms so far leave
+    (zero-padded ``up`` times, parabolic in log power) and refits all atoms
+    jointly; it stops at ``max_atoms`` or when that peak's energy is under
+    ``min_share`` of ``z``'s."""
     T, R, N = z.shape
     Z = z.reshape(T * R, N)
     total = float(np.vdot(Z, Z).real)
