@@ -121,15 +121,23 @@ def scan(z: np.ndarray, phase_per_unit: np.ndarray, grid: np.ndarray) -> np.ndar
     return _rows_times(z, e)
 
 
+def parabolic_offset(lft, mid, rgt) -> np.ndarray:
+    """Offset in ``[-0.5, 0.5]`` samples of the vertex of the parabola through
+    three equally spaced values around a peak (elementwise); 0 where they do
+    not curve down or a neighbour is not finite (outside a search range)."""
+    lft, mid, rgt = (np.asarray(a, np.float64) for a in (lft, mid, rgt))
+    ok = np.isfinite(lft) & np.isfinite(rgt)
+    den = np.where(ok, lft - 2 * mid + rgt, 0.0)
+    num = np.where(ok, lft - rgt, 0.0)
+    return np.clip(np.where(den < 0, 0.5 * num / np.where(den < 0, den, -1.0), 0.0), -0.5, 0.5)
+
+
 def refine_peak(grid: np.ndarray, score: np.ndarray) -> float:
     """Grid value of the maximum of ``score`` refined by a parabola through its neighbours."""
     i = int(np.argmax(score))
     if 0 < i < len(grid) - 1:
-        a, b, c = score[i - 1], score[i], score[i + 1]
-        den = a - 2 * b + c
-        if den < 0:
-            step = grid[i + 1] - grid[i]
-            return float(grid[i] + 0.5 * (a - c) / den * step)
+        off = float(parabolic_offset(score[i - 1], score[i], score[i + 1]))
+        return float(grid[i] + off * (grid[i + 1] - grid[i]))
     return float(grid[i])
 
 

@@ -82,7 +82,7 @@ from ...radar.config import SPEED_OF_LIGHT
 from .. import ops
 from ..base import Effect, ParamSpec
 from ..context import IF_BAND_START
-from ._sensor_common import _rows_times as _rows, filter_rows
+from ._sensor_common import _rows_times as _rows, filter_rows, parabolic_offset
 from .scatterer import one_blas_thread, single_blas, static_view, unit_vectors
 
 dr, mi = ops.dr, ops.mi
@@ -155,18 +155,7 @@ def elevation_sines(Y, ctx, s_y, step: float = 0.01) -> np.ndarray:
     logp[grid[:, None] ** 2 + s_y[None] ** 2 >= 0.999] = -np.inf              # [S, M]
     j = np.clip(np.argmax(logp, axis=0), 1, len(grid) - 2)
     m = np.arange(len(s_y))
-    return grid[j] + _parabolic_offset(logp[j - 1, m], logp[j, m], logp[j + 1, m]) * step
-
-
-def _parabolic_offset(lft, mid, rgt) -> np.ndarray:
-    """Offset in ``[-0.5, 0.5]`` samples of the vertex of the parabola through
-    three equally spaced values (log powers) around a peak; 0 where they do
-    not curve down or a neighbour is not finite (outside the search range)."""
-    lft, mid, rgt = (np.asarray(a, np.float64) for a in (lft, mid, rgt))
-    ok = np.isfinite(lft) & np.isfinite(rgt)
-    den = np.where(ok, lft - 2 * mid + rgt, 0.0)
-    num = np.where(ok, lft - rgt, 0.0)
-    return np.clip(np.where(den < 0, 0.5 * num / np.where(den < 0, den, -1.0), 0.0), -0.5, 0.5)
+    return grid[j] + parabolic_offset(logp[j - 1, m], logp[j, m], logp[j + 1, m]) * step
 
 
 def _boresight_share(s_y, s_z) -> np.ndarray:
@@ -186,7 +175,7 @@ def bin_cosines(z, ctx, az_limit: float = 80.0) -> np.ndarray:
     logp = np.log(np.abs(np.conj(A).T @ Z) ** 2 + 1e-300)                   # [A, N]
     j = np.clip(np.argmax(logp, axis=0), 1, len(grid) - 2)
     n = np.arange(N)
-    off = _parabolic_offset(logp[j - 1, n], logp[j, n], logp[j + 1, n])
+    off = parabolic_offset(logp[j - 1, n], logp[j, n], logp[j + 1, n])
     s_y = np.sin(np.radians(grid[j] + off * step))
     return _boresight_share(s_y, elevation_sines(Z, ctx, s_y))
 
@@ -205,7 +194,7 @@ def _peak_frequency(zr, up: int) -> tuple:
     L = up * zr.shape[-1]
     P = np.sum(np.abs(np.fft.fft(zr, n=L, axis=-1)) ** 2, axis=0)
     k = int(np.argmax(P))
-    off = float(_parabolic_offset(*(np.log(P[(k + i) % L] + 1e-300) for i in (-1, 0, 1))))
+    off = float(parabolic_offset(*(np.log(P[(k + i) % L] + 1e-300) for i in (-1, 0, 1))))
     return (k + off) / L, float(P[k])
 
 

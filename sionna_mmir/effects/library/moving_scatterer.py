@@ -41,7 +41,7 @@ import numpy as np
 from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
-from ._sensor_common import chirp_deviation
+from ._sensor_common import chirp_deviation, parabolic_offset
 from .scatterer import (C0, DrGeometry, beat_ranges, check_range_limits, dr_ref_phase,
                         ref_phase_np, single_blas)
 
@@ -157,10 +157,7 @@ def _parabolic(logp, path) -> np.ndarray:
     """Sub-bin offsets of the peaks ``path [F]`` of ``logp [F, M]`` (wrapping)."""
     F, M = logp.shape
     f = np.arange(F)
-    lft, mid, rgt = logp[f, (path - 1) % M], logp[f, path], logp[f, (path + 1) % M]
-    den = lft - 2 * mid + rgt
-    return np.clip(np.where(den < 0, 0.5 * (lft - rgt) / np.where(den < 0, den, -1.0), 0.0),
-                   -0.5, 0.5)
+    return parabolic_offset(logp[f, (path - 1) % M], logp[f, path], logp[f, (path + 1) % M])
 
 
 def _track_slope(r, frame_period, half: int = 3) -> np.ndarray:
