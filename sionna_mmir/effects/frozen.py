@@ -11,7 +11,11 @@ chirp-averaged counterpart when their values are held fixed:
   its average over chirps, ``mean_c s``, added at the same stage;
 * a **variance effect** (a phase-noise skirt, a coloured floor) of noise
   that is independent from chirp to chirp: the average of ``C`` chirps
-  carries ``mean_c v / C``.
+  carries ``mean_c v / C``;
+* an effect that brings its own counterpart (``averaged_counterpart``), a
+  ``FrozenPart`` subclass: ego motion at a fixed velocity is a linear map
+  of the static scene, and so is its chirp average
+  (:class:`~.library.ego_motion_average.AveragedEgoMotion`).
 
 ``FrozenPart`` is that counterpart: no parameters, the source effect's name,
 kind and stage, and the precomputed signal or variance ``[F, T, R, 1, N]``
@@ -27,9 +31,12 @@ from .base import Effect
 
 
 def averageable(effect: Effect) -> bool:
-    """Whether a component of ``effect`` has a chirp-averaged counterpart at fixed values."""
+    """Whether a component of ``effect`` has a chirp-averaged counterpart at fixed values
+    (an additive or variance effect here, or an effect with its own
+    ``averaged_counterpart(values, ctx)``, e.g. ego motion)."""
     return effect.chirp_static or effect.kind == "variance" or (
-        effect.kind == "mean" and getattr(effect, "additive", False))
+        effect.kind == "mean" and getattr(effect, "additive", False)) \
+        or callable(getattr(effect, "averaged_counterpart", None))
 
 
 class FrozenPart(Effect):

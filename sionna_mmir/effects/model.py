@@ -282,7 +282,10 @@ class EffectModel:
                 if static:
                     continue
                 blk = _block(tens, i, c)
-                if c.effect.kind == "variance":
+                counterpart = getattr(c.effect, "averaged_counterpart", None)
+                if callable(counterpart):
+                    part = counterpart(c.values, self.ctx)
+                elif c.effect.kind == "variance":
                     v = ops.to_numpy(c.effect.variance(x, X, blk, self.ctx)
                                      + dr.zeros(mi.TensorXf, X[0].shape))
                     part = FrozenPart(c.effect, variance=v.mean(axis=3, keepdims=True) / C)

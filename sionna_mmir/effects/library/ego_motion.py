@@ -591,6 +591,14 @@ class EgoMotion(Effect):
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
         return xr if moved is None else ops.cadd(moved, xr)
 
+    def averaged_counterpart(self, values, ctx):
+        """This effect at ``values``, averaged over the chirp loops of ``ctx``:
+        a linear map of the static scene
+        (:class:`~.ego_motion_average.AveragedEgoMotion`)."""
+        from .ego_motion_average import AveragedEgoMotion
+
+        return AveragedEgoMotion(self, float(np.ravel(values["velocity"])[0]), ctx)
+
     def silenced(self, values):
         """The radar at rest (velocity 0: the static scene unchanged)."""
         return {**values, "velocity": np.zeros_like(np.asarray(values["velocity"]))}
