@@ -218,3 +218,51 @@ def test_10_time_domain_nll_is_the_range_domain_nll():
     m.add(IFFilter())
     assert not m._white() and m.split_likelihood()
     assert m.nll(cells) == pytest.approx(split_nll(m, cells), rel=1e-5, abs=1e-5)
+
+
+def test_11_a_held_chain_is_evaluated_once_and_gives_the_same_loss():
+    """A fit that holds the components before the first trainable one
+    evaluates them once (:meth:`EffectModel.frozen_prefix`: ``p0 + g d`` in
+    the nuisance gain).  Truth: the same model's loss and gradients through
+    the whole chain, at values away from the fitted ones (a missing
+    scatterer, ego motion, a mover and per-channel gains held, a DC offset
+    fitted); ego motion's geometry, derived from a scene whose layout
+    changes with the gain, is held at the current gain's; a held IQ
+    imbalance is not affine in the gain and gets no prefix."""
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+    from sionna_mmir.effects.library.iq_imbalance import IQImbalance
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.effects.library.scatterer import MissingScatterer
+    from sionna_mmir.effects.model import _Prefix
+
+    radar, clean, n = _scene(num_chirps=4)
+    ctx = EffectContext(radar)
+    m = EffectModel(ctx, clean + n, clean)
+    for eff in (MissingScatterer(), EgoMotion(), MovingScatterer(), ChannelGain(), DCOffset()):
+        m.add(eff)
+    m.components[0].values.update(range=np.array([3.3]), amp=np.array([0.5, 0.4]))
+    m.components[1].values["velocity"] = np.array([0.4])
+    m.components[2].values.update(amp=np.array([[0.3, -0.2]]), velocity=np.array([1.1]))
+    rng = np.random.default_rng(11)
+    for c in m.components[3:]:
+        c.values = {k: v + 0.05 * rng.normal(size=np.shape(v)) for k, v in c.values.items()}
+    m.nuisance.values["gain"] = np.array([0.8, 0.3])
+    pre = m.frozen_prefix([4])
+    assert isinstance(pre, _Prefix) and pre.skip == frozenset({0, 1, 2, 3})
+    keys = {(-1, "gain"), (-1, "log_noise"), (4, "dc")}
+    mask, cnt = m.mask_tensor()
+    out = []
+    for frozen in (None, pre):
+        tens = m._tensors(grad_keys=keys)
+        with ops.single_thread():                  # as fit() runs (see ops.single_thread)
+            loss = m.loss(tens, mask, cnt, frozen)
+            dr.backward(loss)
+            out.append((ops.item(loss),
+                        [np.asarray(dr.grad(tens[k]), np.float64) for k in sorted(keys)]))
+    assert out[1][0] == pytest.approx(out[0][0], rel=1e-5)
+    for a, b in zip(out[0][1], out[1][1]):
+        np.testing.assert_allclose(b, a, rtol=1e-3, atol=1e-4 * np.abs(a).max())
+    m.add(IQImbalance())
+    m.components[-1].values = {k: v + 0.1 for k, v in m.components[-1].values.items()}
+    m.add(DCOffset())
+    assert m.frozen_prefix([6]) is None

@@ -603,7 +603,10 @@ def test_21b_adc_clipping_of_a_static_scene_is_fitted_on_the_chirp_average():
     ``1 / C`` of the work: the averaged model's mean is the full model's
     averaged, and the level fitted on the average is the planted one (truth:
     ``np.clip`` of the direct synthesis at the planted level).  Behind a
-    mover the clip's input changes from chirp to chirp and nothing averages."""
+    mover the clip's input changes from chirp to chirp: the clip is scored
+    on every chirp, and once adopted it enters the averaged model at its
+    level as the chirp mean of the clipped inputs (``AveragedClipping``),
+    equal to the full model's mean averaged over chirps."""
     from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
     from sionna_mmir.residual.ranking import _averaged_scoring
 
@@ -630,10 +633,19 @@ def test_21b_adc_clipping_of_a_static_scene_is_fitted_on_the_chirp_average():
     moving.components = []
     moving.add(MovingScatterer())
     assert not _averaged_scoring(ADCClipping(), moving)
+    moving.components[0].values.update(amp=np.array([[0.8, 0.6]]), velocity=np.array([1.5]))
     moving.components.append(comp.copy())
-    assert moving.static_flags() == [False, False] and not moving.can_average()
+    assert moving.static_flags() == [False, False] and moving.can_average()
     with pytest.raises(Exception, match="adc_clipping"):
-        moving.chirp_averaged(freeze=True)
+        moving.chirp_averaged()
+    from sionna_mmir.effects.library.adc_clipping import AveragedClipping
+    full = moving.mean_variance_numpy()[0]
+    avg = moving.chirp_averaged(freeze=True)
+    assert isinstance(avg.components[1].effect, AveragedClipping)
+    clip = np.clip(full.real, -a / m.scale, a / m.scale)
+    assert np.mean(np.abs(full - clip) > 1e-3) > 0.01                 # the clip is active
+    np.testing.assert_allclose(avg.mean_variance_numpy()[0], full.mean(axis=3, keepdims=True),
+                               atol=1e-5 * np.abs(full).max())
 
 
 # ============================================================= noise floor

@@ -23,6 +23,7 @@ Effects run in ``stage`` order: 0 scene (extra paths), 1 RF / per channel
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 
 import numpy as np
@@ -124,6 +125,14 @@ class Effect:
     #: the residual loop adopts it only while it explains at least this much
     #: (nats per held-out sample; :meth:`gain_floor`)
     min_gain_per_sample = 0.0
+
+    def held_state(self):
+        """A context in which the effect keeps whatever it derives from its
+        input (ego motion's geometry) fixed at what it first derives there,
+        so that it is a fixed map of its input
+        (:meth:`~sionna_mmir.effects.model.EffectModel.frozen_prefix`);
+        nothing to hold by default."""
+        return contextlib.nullcontext()
 
     def silenced(self, values: dict):
         """``values`` with this effect's contribution switched off (an additive

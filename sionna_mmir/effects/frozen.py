@@ -15,7 +15,10 @@ chirp-averaged counterpart when their values are held fixed:
 * an effect that brings its own counterpart (``averaged_counterpart``), a
   ``FrozenPart`` subclass: ego motion at a fixed velocity is a linear map
   of the static scene, and so is its chirp average
-  (:class:`~.library.ego_motion_average.AveragedEgoMotion`).
+  (:class:`~.library.ego_motion_average.AveragedEgoMotion`); ADC clipping
+  behind a chirp-varying effect is the chirp mean of the clipped inputs,
+  which differ from their mean by a fixed deviation at the held values
+  (:class:`~.library.adc_clipping.AveragedClipping`).
 
 ``FrozenPart`` is that counterpart: no parameters, the source effect's name,
 kind and stage, and the precomputed signal or variance ``[F, T, R, 1, N]``
@@ -33,7 +36,7 @@ from .base import Effect
 def averageable(effect: Effect) -> bool:
     """Whether a component of ``effect`` has a chirp-averaged counterpart at fixed values
     (an additive or variance effect here, or an effect with its own
-    ``averaged_counterpart(values, ctx)``, e.g. ego motion)."""
+    ``averaged_counterpart(values, ctx, model_input)``, e.g. ego motion)."""
     return effect.chirp_static or effect.kind == "variance" or (
         effect.kind == "mean" and getattr(effect, "additive", False)) \
         or callable(getattr(effect, "averaged_counterpart", None))

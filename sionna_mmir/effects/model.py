@@ -23,6 +23,7 @@ O(1) whatever the capture's units.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 
@@ -284,7 +285,7 @@ class EffectModel:
                 blk = _block(tens, i, c)
                 counterpart = getattr(c.effect, "averaged_counterpart", None)
                 if callable(counterpart):
-                    part = counterpart(c.values, self.ctx)
+                    part = counterpart(c.values, self.ctx, lambda i=i: self._input_of(i))
                 elif c.effect.kind == "variance":
                     v = ops.to_numpy(c.effect.variance(x, X, blk, self.ctx)
                                      + dr.zeros(mi.TensorXf, X[0].shape))
@@ -294,6 +295,18 @@ class EffectModel:
                     part = FrozenPart(c.effect, signal=s.mean(axis=3, keepdims=True))
                 out[id(c)] = Component(effect=part, specs={}, values={})
         return out
+
+    def _input_of(self, i: int) -> np.ndarray:
+        """The mean model as component ``i`` receives it: the components before
+        it in the chain order, ``[F, T, R, C, N]`` (normalised units)."""
+        order = self._order()
+        before = order[:order.index(i)]
+        every = self.components
+        self.components = [every[j] for j in sorted(before)]
+        try:
+            return self.mean_variance_numpy()[0]
+        finally:
+            self.components = every
 
     def remove(self, comp: Component):
         self.components.remove(comp)
@@ -411,18 +424,72 @@ class EffectModel:
         return e / max(e.sum(), 1e-300)
 
     def _mean(self, tens: dict, order, frozen=None):
-        """The mean ADC ``x`` (time domain) from tensors ``tens[(i, name)]``."""
+        """The mean ADC ``x`` (time domain) from tensors ``tens[(i, name)]``;
+        ``frozen`` the base after the scene-side effects
+        (:meth:`frozen_base`) or the model up to the first fitted component
+        (:class:`_Prefix`), evaluated once for a fit that holds it."""
         g = tens[(-1, "gain")]
         one = (1, 1, 1, 1, 1)
-        b = self._base(tens, order, frozen)
-        x = (ops.cmul(b, (ops.column(ops.view(g, (1, 2)), 0, one),
-                          ops.column(ops.view(g, (1, 2)), 1, one)))
-             if self.has_base else ops.zeros_like(self.b_t))
+        gain = (ops.column(ops.view(g, (1, 2)), 0, one), ops.column(ops.view(g, (1, 2)), 1, one))
+        if isinstance(frozen, _Prefix):
+            x = ops.cadd(frozen.p0, ops.cmul(frozen.d, gain))
+            order = [i for i in order if i not in frozen.skip]
+        else:
+            b = self._base(tens, order, frozen)
+            x = ops.cmul(b, gain) if self.has_base else ops.zeros_like(self.b_t)
         for i in order:
             c = self.components[i]
             if c.effect.kind == "mean":
                 x = c.effect.apply(x, _block(tens, i, c), self.ctx)
         return x
+
+    #: relative error allowed where :meth:`frozen_prefix` checks that the
+    #: held chain is affine in the nuisance gain (float32 evaluations)
+    PREFIX_TOL = 1e-4
+
+    @_one_thread
+    def frozen_prefix(self, trainable) -> "_Prefix | None":
+        """The mean model up to the first of the ``trainable`` components in
+        chain order, for a fit that holds everything before it: ``x(g) = p0
+        + g d`` in the nuisance gain ``g``, evaluated once instead of at
+        every step (a candidate fitted beside an adopted ego motion does not
+        move the scene through it again).
+
+        Valid where the held chain is affine in the base (linear maps such as
+        ego motion or per-channel gains, added paths such as a mover), which
+        is checked at the current and a third gain; what the held effects
+        derive from their input (ego motion's geometry) is held at what the
+        current gain gives (:meth:`~.base.Effect.held_state`).  None where
+        the chain is not affine (IQ imbalance), where no mean effect is
+        held, or where a scene-side component sits after the first trainable
+        one."""
+        if not self.has_base:
+            return None
+        order = self._order()
+        pos = min((order.index(i) for i in trainable), default=len(order))
+        held = order[:pos]
+        if not any(self.components[i].effect.kind == "mean" for i in held) \
+                or any(self.components[i].effect.kind == "basis" for i in order[pos:]):
+            return None
+        g = self.nuisance.values["gain"]
+        with dr.suspend_grad(), contextlib.ExitStack() as stack:
+            for i in held:
+                stack.enter_context(self.components[i].effect.held_state())
+            tens = self._tensors()
+
+            def at(re, im):
+                tens[(-1, "gain")] = mi.TensorXf(np.array([re, im], np.float32))
+                return ops.to_numpy(self._mean(tens, held))
+            now = at(float(g[0]), float(g[1]))      # what the held effects derive: from here
+            p0, p1, pt = at(0.0, 0.0), at(1.0, 0.0), at(0.6, -0.7)
+        d = p1 - p0
+        for gain, x in ((complex(g[0], g[1]), now), (0.6 - 0.7j, pt)):
+            err = np.sum(np.abs(p0 + gain * d - x) ** 2)
+            if not err <= self.PREFIX_TOL ** 2 * max(np.sum(np.abs(x) ** 2), 1e-300):
+                return None
+        p0t, dt = ops.tensor(p0), ops.tensor(d)
+        dr.eval(p0t[0], p0t[1], dt[0], dt[1])
+        return _Prefix(p0=p0t, d=dt, skip=frozenset(held))
 
     def _white(self) -> bool:
         """Whether the variance is the white floor alone (no noise shaper, spread
@@ -760,8 +827,10 @@ class EffectModel:
         bounds = sum((s.bounds() for s in specs), [])
         mask, n = self.mask_tensor(cells)
         key_set = set(keys)
-        frozen = None if any(i >= 0 and self.components[i].effect.kind == "basis"
-                             for i, _ in keys) else self.frozen_base()
+        frozen = self.frozen_prefix(idx)
+        if frozen is None and not any(i >= 0 and self.components[i].effect.kind == "basis"
+                                      for i, _ in keys):
+            frozen = self.frozen_base()
 
         def unpack(vec):
             out, o = {}, 0
@@ -790,6 +859,17 @@ class EffectModel:
         for (i, k), val in unpack(res.x).items():
             comps[i].values[k] = val
         return {"nll": float(res.fun), "iterations": int(res.nit), "success": bool(res.success)}
+
+
+@dataclasses.dataclass(frozen=True)
+class _Prefix:
+    """The held part of the chain (:meth:`EffectModel.frozen_prefix`):
+    ``x = p0 + g d`` (complex pairs ``[F, T, R, C, N]``) replaces the base
+    and the components in ``skip``."""
+
+    p0: tuple
+    d: tuple
+    skip: frozenset
 
 
 def _profiled_cells(r2, s, extra) -> np.ndarray:

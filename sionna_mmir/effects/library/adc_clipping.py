@@ -21,6 +21,14 @@ order within a stage).
 Initial value: ``A`` slightly above the measured peak ``max(|I|, |Q|)`` of
 ``model + residual`` (a clipped capture has its peak at the rail; an unclipped
 one is left nearly unchanged).
+
+Behind a chirp-varying effect (a moving scatterer, ego motion) the input
+differs from chirp to chirp and the clip does not commute with the chirp
+average.  Held at its level, its chirp-averaged counterpart
+(:class:`AveragedClipping`) is the chirp mean of the clipped inputs, each
+the averaged model's input plus that chirp's deviation from the mean, the
+deviation taken from the full model at its held values (exact there; an
+approximation while other components of the averaged model move).
 """
 from __future__ import annotations
 
@@ -28,6 +36,7 @@ import numpy as np
 
 from .. import ops
 from ..base import Effect, ParamSpec
+from ..frozen import FrozenPart
 from ._sensor_common import check_float, scalar, softplus
 
 dr = ops.dr
@@ -66,6 +75,65 @@ class ADCClipping(Effect):
         s = self.softness * a
         return (smooth_clip(x[0], a, s), smooth_clip(x[1], a, s))
 
+    def averaged_counterpart(self, values, ctx, model_input):
+        """This clip at ``values`` on chirp-averaged data
+        (:class:`AveragedClipping`); ``model_input()`` is the full model's
+        input to it, ``[F, T, R, C, N]``."""
+        x = model_input()
+        return AveragedClipping(self, float(np.ravel(values["log_a"])[0]),
+                                x - x.mean(axis=3, keepdims=True))
+
     def summary(self, p, ctx):
         return {"clip_level_normalised": float(np.exp(np.ravel(p["log_a"])[0])),
                 "softness": self.softness}
+
+
+class AveragedClipping(FrozenPart):
+    """:class:`ADCClipping` at a fixed level on chirp-averaged data:
+    ``mean_c clip(x + d_c)`` for the averaged input ``x [F, T, R, 1, N]``
+    and the per-chirp deviations ``d [F, T, R, C, N]`` of the full model's
+    input from its chirp mean (no parameters).
+
+    Parameters
+    ----------
+    source : ADCClipping
+        the effect it stands for
+    log_a : float
+        ``ln A`` (normalised units)
+    deviation : numpy.ndarray
+        complex ``[F, T, R, C, N]``
+    """
+
+    def __init__(self, source, log_a: float, deviation):
+        self.source = source
+        self.name, self.kind, self.stage = source.name, source.kind, source.stage
+        self.chain_order = source.chain_key
+        self.description = f"{source.name} at a fixed level, averaged over chirps"
+        self.log_a = float(log_a)
+        self.deviation = np.asarray(deviation, np.complex64)
+        self._dev = None
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != "_dev"}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._dev = None
+
+    def param_specs(self, ctx, model, residual) -> dict:
+        return {}
+
+    def apply(self, x, p, ctx):
+        if self._dev is None:
+            self._dev = ops.tensor(self.deviation)
+        C = self.deviation.shape[3]
+        shape = tuple(self.deviation.shape[:3]) + (1, self.deviation.shape[4])
+        a = float(np.exp(self.log_a))
+        s = self.source.softness * a
+        a, s = ops.opaque(a), ops.opaque(s)
+        z = ops.cadd(x, self._dev)
+        return tuple(ops.view(dr.sum(smooth_clip(v, a, s), axis=3), shape) * (1.0 / C)
+                     for v in z)
+
+    def variance(self, x, X, p, ctx):
+        raise NotImplementedError("AveragedClipping is a mean effect")

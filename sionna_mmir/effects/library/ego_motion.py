@@ -70,6 +70,7 @@ convention).
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -310,6 +311,26 @@ def _layout_key(z) -> bytes:
     return q.astype(np.int16).tobytes()
 
 
+_HELD = None
+
+
+@contextlib.contextmanager
+def hold_geometry():
+    """Within the block, :func:`ego_geometry` returns for every array and
+    signal shape the geometry it first returned there, whatever the layout:
+    ego motion is then a fixed linear map of the static scene (nested
+    blocks share the outermost one's)."""
+    global _HELD
+    outer = _HELD
+    if outer is None:
+        _HELD = {}
+    try:
+        yield
+    finally:
+        if outer is None:
+            _HELD = None
+
+
 def ego_geometry(z, ctx, max_atoms: int) -> EgoGeometry:
     """:class:`EgoGeometry` of the static signal ``z [T, R, N]``.
 
@@ -325,13 +346,18 @@ def ego_geometry(z, ctx, max_atoms: int) -> EgoGeometry:
     so two processes that reach a layout by different signals can differ
     slightly; the geometry is a constant of the model (no gradient)."""
     z = np.ascontiguousarray(z, np.complex128)
-    key = (_layout_key(z), z.shape, int(max_atoms),
-           hashlib.sha1(np.ascontiguousarray(ctx.radar.virtual_positions(), np.float64)
-                        .tobytes()).hexdigest(),
-           float(ctx.radar.wavelength), float(ctx.radar.slope), float(ctx.radar.sample_rate))
+    array = (z.shape, int(max_atoms),
+             hashlib.sha1(np.ascontiguousarray(ctx.radar.virtual_positions(), np.float64)
+                          .tobytes()).hexdigest(),
+             float(ctx.radar.wavelength), float(ctx.radar.slope), float(ctx.radar.sample_rate))
+    if _HELD is not None and array in _HELD:
+        return _HELD[array]
+    key = (_layout_key(z),) + array
     hit = _GEOMETRY_CACHE.get(key)
     if hit is not None:
         _GEOMETRY_CACHE.move_to_end(key)
+        if _HELD is not None:
+            _HELD[array] = hit
         return hit
     T, R, N = z.shape
     f, waves, W, D = space_time_atoms(z, max_atoms)
@@ -345,6 +371,8 @@ def ego_geometry(z, ctx, max_atoms: int) -> EgoGeometry:
     _GEOMETRY_CACHE[key] = geo
     while len(_GEOMETRY_CACHE) > _GEOMETRY_CACHE_SIZE:
         _GEOMETRY_CACHE.popitem(last=False)
+    if _HELD is not None:
+        _HELD[array] = geo
     return geo
 
 
@@ -591,13 +619,18 @@ class EgoMotion(Effect):
         xr = ops.cmul(xr, ops.cis(ops.tensor(fast) * v))
         return xr if moved is None else ops.cadd(moved, xr)
 
-    def averaged_counterpart(self, values, ctx):
+    def averaged_counterpart(self, values, ctx, model_input=None):
         """This effect at ``values``, averaged over the chirp loops of ``ctx``:
         a linear map of the static scene
-        (:class:`~.ego_motion_average.AveragedEgoMotion`)."""
+        (:class:`~.ego_motion_average.AveragedEgoMotion`; ``model_input``,
+        the full model's input to it, is not needed)."""
         from .ego_motion_average import AveragedEgoMotion
 
         return AveragedEgoMotion(self, float(np.ravel(values["velocity"])[0]), ctx)
+
+    def held_state(self):
+        """The geometry held (:func:`hold_geometry`)."""
+        return hold_geometry()
 
     def silenced(self, values):
         """The radar at rest (velocity 0: the static scene unchanged)."""

@@ -37,7 +37,7 @@ import numpy as np
 from .. import ops
 from ..frozen import FrozenPart
 from ._sensor_common import _rows_times as _rows
-from .ego_motion import ego_geometry, phase_terms
+from .ego_motion import ego_geometry, hold_geometry, phase_terms
 from .scatterer import one_blas_thread, static_view
 
 dr, mi = ops.dr, ops.mi
@@ -149,6 +149,10 @@ class AveragedEgoMotion(FrozenPart):
 
     def param_specs(self, ctx, model, residual) -> dict:
         return {}
+
+    def held_state(self):
+        """The geometry held (:func:`~.ego_motion.hold_geometry`)."""
+        return hold_geometry()
 
     def kernels(self, geo):
         """``(A, K)`` for geometry ``geo`` (remembered for the last one)."""
