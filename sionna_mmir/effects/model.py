@@ -822,25 +822,36 @@ class EffectModel:
             self._rescale_noise(cells)
         comps = dict(self._all())
         specs = [comps[i].specs[k] for i, k in keys]
-        sizes = [s.size for s in specs]
         x0 = np.concatenate([np.asarray(comps[i].values[k], np.float64).ravel() for i, k in keys])
         bounds = sum((s.bounds() for s in specs), [])
         mask, n = self.mask_tensor(cells)
-        key_set = set(keys)
-        frozen = self.frozen_prefix(idx)
-        if frozen is None and not any(i >= 0 and self.components[i].effect.kind == "basis"
-                                      for i, _ in keys):
-            frozen = self.frozen_base()
+        with self.held():
+            frozen = self.frozen_prefix(idx)
+            if frozen is None and not any(i >= 0 and self.components[i].effect.kind == "basis"
+                                          for i, _ in keys):
+                frozen = self.frozen_base()
+            res = self._minimize(keys, specs, x0, bounds, mask, n, frozen, maxiter)
+        for (i, k), val in _unpack(res.x, keys, specs).items():
+            comps[i].values[k] = val
+        return {"nll": float(res.fun), "iterations": int(res.nit), "success": bool(res.success)}
 
-        def unpack(vec):
-            out, o = {}, 0
-            for (i, k), s, m in zip(keys, specs, sizes):
-                out[(i, k)] = vec[o:o + m].reshape(s.init.shape)
-                o += m
-            return out
+    def held(self) -> contextlib.ExitStack:
+        """A context holding what every component derives from its input
+        (:meth:`~.base.Effect.held_state`: ego motion's geometry) at what it
+        first derives inside: one fit sees one smooth objective, and the
+        geometry follows the scene from one fit to the next."""
+        stack = contextlib.ExitStack()
+        for c in self.components:
+            stack.enter_context(c.effect.held_state())
+        return stack
+
+    def _minimize(self, keys, specs, x0, bounds, mask, n, frozen, maxiter):
+        """L-BFGS-B over the flattened values of ``keys`` (:meth:`fit`)."""
+        key_set = set(keys)
+        comps = dict(self._all())
 
         def fun(vec):
-            for (i, k), val in unpack(vec).items():
+            for (i, k), val in _unpack(vec, keys, specs).items():
                 comps[i].values[k] = val
             tens = self._tensors(grad_keys=key_set)
             loss = self.loss(tens, mask, n, frozen)
@@ -853,12 +864,18 @@ class EffectModel:
                 return 1e30, np.zeros_like(vec)
             return val, np.nan_to_num(grad)
 
-        res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
-                       options={"maxiter": int(maxiter), "ftol": FIT_FTOL, "gtol": 1e-9,
-                                "maxcor": 20})
-        for (i, k), val in unpack(res.x).items():
-            comps[i].values[k] = val
-        return {"nll": float(res.fun), "iterations": int(res.nit), "success": bool(res.success)}
+        return minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
+                        options={"maxiter": int(maxiter), "ftol": FIT_FTOL, "gtol": 1e-9,
+                                 "maxcor": 20})
+
+
+def _unpack(vec, keys, specs) -> dict:
+    """``{key: value}`` from the flat parameter vector of :meth:`EffectModel.fit`."""
+    out, o = {}, 0
+    for key, s in zip(keys, specs):
+        out[key] = vec[o:o + s.size].reshape(s.init.shape)
+        o += s.size
+    return out
 
 
 @dataclasses.dataclass(frozen=True)

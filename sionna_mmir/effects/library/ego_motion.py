@@ -340,7 +340,9 @@ def ego_geometry(z, ctx, max_atoms: int) -> EgoGeometry:
     fit changes the amplitudes a little, and the atoms' coefficients are
     taken from the current signal at every call (:meth:`EgoMotion.apply`).
     A fit that moves only amplitudes, or only parameters after ego motion,
-    derives it once or a few times instead of at every evaluation.  Within
+    derives it once or a few times instead of at every evaluation; inside
+    :func:`hold_geometry` (every :meth:`~sionna_mmir.effects.model.EffectModel.fit`)
+    it is the one first returned there, so a fit sees one smooth map.  Within
     a layout the geometry is the one derived from the first signal seen
     (in this process, among the last :data:`_GEOMETRY_CACHE_SIZE` layouts),
     so two processes that reach a layout by different signals can differ
