@@ -84,6 +84,7 @@ from .. import ops
 from ..base import Effect, ParamSpec
 from ..context import IF_BAND_START
 from ._sensor_common import _rows_times as _rows, filter_rows, parabolic_offset
+from .ego_motion_average import AveragedEgoMotion
 from .scatterer import one_blas_thread, single_blas, static_view, unit_vectors
 
 dr, mi = ops.dr, ops.mi
@@ -626,13 +627,21 @@ class EgoMotion(Effect):
         a linear map of the static scene
         (:class:`~.ego_motion_average.AveragedEgoMotion`; ``model_input``,
         the full model's input to it, is not needed)."""
-        from .ego_motion_average import AveragedEgoMotion
-
         return AveragedEgoMotion(self, float(np.ravel(values["velocity"])[0]), ctx)
 
     def held_state(self):
         """The geometry held (:func:`hold_geometry`)."""
         return hold_geometry()
+
+    def geometry(self, z, ctx) -> EgoGeometry:
+        """:func:`ego_geometry` of the static signal ``z [T, R, N]`` with this
+        effect's ``max_directions``."""
+        return ego_geometry(z, ctx, self.max_directions)
+
+    @staticmethod
+    def time_terms(ctx):
+        """:func:`phase_terms` of ``ctx``."""
+        return phase_terms(ctx)
 
     def silenced(self, values):
         """The radar at rest (velocity 0: the static scene unchanged)."""

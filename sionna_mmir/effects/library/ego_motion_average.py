@@ -17,7 +17,9 @@ model)::
     A[f, t, r, j, n] = mean_c S[f, t, r, c, j] Q[f, t, c, j, n]
     K[f, t, n, k]   = (1 / C) sum_c E[f, t, c, n] P[f, t, c, k] F^H[n, k]
 
-with ``S``, ``Q`` the atoms' slow- and fast-time factors
+(the source effect gives the geometry, its time terms and its hold, so
+this module does not import :mod:`~.ego_motion`) with ``S``, ``Q`` the
+atoms' slow- and fast-time factors
 (:class:`~.ego_motion._MovedAtoms`), ``P[k] = e^{j v 2 pi f_c rho' T_c
 cos_k}`` the rest's per-bin slow-time factor, ``E[n] = e^{j v phi_fast}``
 its fast-time factor and ``F^H`` the unitary inverse DFT.  Exact to float32
@@ -37,7 +39,6 @@ import numpy as np
 from .. import ops
 from ..frozen import FrozenPart
 from ._sensor_common import _rows_times as _rows
-from .ego_motion import ego_geometry, hold_geometry, phase_terms
 from .scatterer import one_blas_thread, static_view
 
 dr, mi = ops.dr, ops.mi
@@ -135,7 +136,7 @@ class AveragedEgoMotion(FrozenPart):
         self.description = f"{source.name} at {velocity:.4f} m/s, averaged over chirps"
         self.velocity = float(velocity)
         F, T, _, C, N = ctx.shape
-        bins, fast = phase_terms(ctx)
+        bins, fast = source.time_terms(ctx)
         self.bins = np.ascontiguousarray(np.broadcast_to(bins, (F, T, 1, C, 1)))
         self.fast = np.ascontiguousarray(np.broadcast_to(fast, (F, T, 1, C, N)))
         self._kernels = None
@@ -152,7 +153,7 @@ class AveragedEgoMotion(FrozenPart):
 
     def held_state(self):
         """The geometry held (:func:`~.ego_motion.hold_geometry`)."""
-        return hold_geometry()
+        return self.source.held_state()
 
     def kernels(self, geo):
         """``(A, K)`` for geometry ``geo`` (remembered for the last one)."""
@@ -168,7 +169,7 @@ class AveragedEgoMotion(FrozenPart):
             return ops.cmul(x, ops.tensor(e))
         xn = ops.to_numpy(x)
         with one_blas_thread():
-            geo = ego_geometry(static_view(xn), ctx, self.source.max_directions)
+            geo = self.source.geometry(static_view(xn), ctx)
             A, K = self.kernels(geo)
         out = dr.custom(_AveragedMove, x[0], x[1], W=geo.W, waves=geo.waves, A=A, K=K)
         return out[0], out[1]
