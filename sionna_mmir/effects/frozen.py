@@ -60,12 +60,16 @@ class FrozenPart(Effect):
     def __init__(self, source: Effect, signal=None, variance=None):
         if (signal is None) == (variance is None):
             raise ValueError("FrozenPart: give exactly one of signal and variance")
+        self._stand_for(source, "at fixed values")
+        self._signal = None if signal is None else ops.tensor(signal)
+        self._variance = None if variance is None else ops.tensor(np.asarray(variance, float))
+
+    def _stand_for(self, source: Effect, how: str) -> None:
+        """Take ``source``'s name, kind, stage and place in the chain."""
         self.source = source
         self.name, self.kind, self.stage = source.name, source.kind, source.stage
         self.chain_order = source.chain_key
-        self.description = f"{source.name} at fixed values, averaged over chirps"
-        self._signal = None if signal is None else ops.tensor(signal)
-        self._variance = None if variance is None else ops.tensor(np.asarray(variance, float))
+        self.description = f"{source.name} {how}, averaged over chirps"
 
     def param_specs(self, ctx, model, residual) -> dict:
         return {}

@@ -105,10 +105,7 @@ class AveragedClipping(FrozenPart):
     """
 
     def __init__(self, source, log_a: float, deviation):
-        self.source = source
-        self.name, self.kind, self.stage = source.name, source.kind, source.stage
-        self.chain_order = source.chain_key
-        self.description = f"{source.name} at a fixed level, averaged over chirps"
+        self._stand_for(source, "at a fixed level")
         self.log_a = float(log_a)
         self.deviation = np.asarray(deviation, np.complex64)
         self._dev = None
@@ -119,9 +116,6 @@ class AveragedClipping(FrozenPart):
     def __setstate__(self, state):
         self.__dict__.update(state)
         self._dev = None
-
-    def param_specs(self, ctx, model, residual) -> dict:
-        return {}
 
     def apply(self, x, p, ctx):
         if self._dev is None:

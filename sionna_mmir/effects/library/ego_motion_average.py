@@ -130,10 +130,7 @@ class AveragedEgoMotion(FrozenPart):
     """
 
     def __init__(self, source, velocity: float, ctx):
-        self.source = source
-        self.name, self.kind, self.stage = source.name, source.kind, source.stage
-        self.chain_order = source.chain_key
-        self.description = f"{source.name} at {velocity:.4f} m/s, averaged over chirps"
+        self._stand_for(source, f"at {velocity:.4f} m/s")
         self.velocity = float(velocity)
         F, T, _, C, N = ctx.shape
         bins, fast = source.time_terms(ctx)
@@ -147,9 +144,6 @@ class AveragedEgoMotion(FrozenPart):
     def __setstate__(self, state):
         self.__dict__.update(state)
         self._kernels = None
-
-    def param_specs(self, ctx, model, residual) -> dict:
-        return {}
 
     def held_state(self):
         """The geometry held (:func:`~.ego_motion.hold_geometry`)."""
