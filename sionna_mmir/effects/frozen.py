@@ -64,6 +64,17 @@ class FrozenPart(Effect):
         self._signal = None if signal is None else ops.tensor(signal)
         self._variance = None if variance is None else ops.tensor(np.asarray(variance, float))
 
+    #: attributes rebuilt on first use (device tensors, kernels): not pickled
+    _CACHED: tuple = ()
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k not in self._CACHED}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        for k in self._CACHED:
+            setattr(self, k, None)
+
     def _stand_for(self, source: Effect, how: str) -> None:
         """Take ``source``'s name, kind, stage and place in the chain."""
         self.source = source

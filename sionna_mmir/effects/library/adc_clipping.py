@@ -104,17 +104,12 @@ class AveragedClipping(FrozenPart):
         complex ``[F, T, R, C, N]``
     """
 
+    _CACHED = ("_dev",)
+
     def __init__(self, source, log_a: float, deviation):
         self._stand_for(source, "at a fixed level")
         self.log_a = float(log_a)
         self.deviation = np.asarray(deviation, np.complex64)
-        self._dev = None
-
-    def __getstate__(self):
-        return {k: v for k, v in self.__dict__.items() if k != "_dev"}
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
         self._dev = None
 
     def apply(self, x, p, ctx):

@@ -129,6 +129,8 @@ class AveragedEgoMotion(FrozenPart):
         the full model's context (its slow and fast times)
     """
 
+    _CACHED = ("_kernels",)
+
     def __init__(self, source, velocity: float, ctx):
         self._stand_for(source, f"at {velocity:.4f} m/s")
         self.velocity = float(velocity)
@@ -136,13 +138,6 @@ class AveragedEgoMotion(FrozenPart):
         bins, fast = source.time_terms(ctx)
         self.bins = np.ascontiguousarray(np.broadcast_to(bins, (F, T, 1, C, 1)))
         self.fast = np.ascontiguousarray(np.broadcast_to(fast, (F, T, 1, C, N)))
-        self._kernels = None
-
-    def __getstate__(self):
-        return {k: v for k, v in self.__dict__.items() if k != "_kernels"}
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
         self._kernels = None
 
     def held_state(self):
