@@ -266,3 +266,65 @@ def test_11_a_held_chain_is_evaluated_once_and_gives_the_same_loss():
     m.components[-1].values = {k: v + 0.1 for k, v in m.components[-1].values.items()}
     m.add(DCOffset())
     assert m.frozen_prefix([6]) is None
+
+
+def test_12_blockwise_refit_reaches_the_joint_fit():
+    """:func:`~sionna_mmir.effects.blockwise.fit_joint` beside a mover: the
+    static components on the chirp average, the mover on every chirp,
+    alternated.  Truth: the one joint fit of the same model on every chirp
+    (same objective, same start): the NLL within 1e-5 nats per sample and
+    the same values; the static block's optimum is the full objective's
+    optimum in those parameters (a full-data fit of them from there gains
+    nothing).  The blocks are not taken for one chirp loop, a mask that
+    splits a channel's chirps, or ego motion (a map of the whole scene)."""
+    from sionna_mmir.effects import blockwise
+    from sionna_mmir.effects.library.ego_motion import EgoMotion
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.effects.library.scatterer import MissingScatterer
+
+    radar, clean, n = _scene(num_chirps=8, noise=0.01)
+    ctx = EffectContext(radar)
+    truth = EffectModel(ctx, clean, clean)
+    for eff in (MissingScatterer(), MovingScatterer(), ChannelGain()):
+        truth.add(eff)
+    truth.components[0].values.update(range=np.array([3.3]), amp=np.array([0.5, 0.4]))
+    truth.components[1].values.update(range=np.array([4.1]), azimuth=np.array([20.0]),
+                                      amp=np.array([[0.3, -0.2]]), velocity=np.array([1.1]))
+    rng = np.random.default_rng(12)
+    g = truth.components[2]
+    g.values = {k: v + 0.1 * rng.normal(size=np.shape(v)) for k, v in g.values.items()}
+    y = truth.mean_adc() + n
+    models = []
+    for _ in range(2):                   # started where the data-driven inits put them
+        m = EffectModel(ctx, y, clean)
+        for eff in (MissingScatterer(), MovingScatterer(), ChannelGain()):
+            m.add(eff)
+        models.append(m)
+    block, joint = models
+    assert blockwise.blocks(block) == ([0, 2], [1])
+    out = blockwise.fit_joint(block, maxiter=300)
+    joint.fit(maxiter=300)
+    assert out["cycles"] >= 1
+    assert block.nll() <= joint.nll() + 1e-5
+    xb, xj = block.mean_variance_numpy()[0], joint.mean_variance_numpy()[0]
+    assert np.sum(np.abs(xb - xj) ** 2) < 1e-4 * np.sum(np.abs(xj) ** 2)
+    for m in (block, joint):                     # and both at the planted values
+        for c, t in zip(m.components[:2], truth.components[:2]):
+            assert c.values["range"] == pytest.approx(t.values["range"], abs=5e-3)
+        assert m.components[1].values["velocity"] == pytest.approx(1.1, abs=0.01)
+    # the static block is exact: its optimum is the full data's in those parameters
+    probe = block.copy()
+    blockwise._fit_static(probe, [0, 2], None, 300)
+    before = probe.nll()
+    probe.fit(trainable=[0, 2], maxiter=300, nuisance=False)
+    assert probe.nll() == pytest.approx(before, abs=2e-6)
+    one = EffectModel(EffectContext(RadarConfig.awr1843(num_chirps=1)),
+                      y[..., :1, :], clean[..., :1, :])
+    one.add(MissingScatterer()), one.add(ChannelGain())
+    assert blockwise.blocks(one) is None
+    cells = np.ones(ctx.shape[:4], bool)
+    cells[..., 0] = False
+    assert blockwise.blocks(block, cells) is None
+    assert blockwise.blocks(block, cells[..., :1] & np.ones(ctx.shape[:4], bool)) is not None
+    block.add(EgoMotion())
+    assert blockwise.blocks(block) is None

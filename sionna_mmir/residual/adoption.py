@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from ..effects.blockwise import fit_joint
 from ..effects.model import Component as _Component, EffectModel
 from .ranking import _averaged_scoring, _fit_candidate, _mean_only
 from .workers import SERIAL
@@ -39,7 +40,7 @@ def _restart_task(model, i: int, maxiter: int) -> tuple:
     trial = model.copy()
     c = trial.components[i]
     c.values = {k: np.array(s.init, copy=True) for k, s in c.specs.items()}
-    trial.fit(maxiter=2 * maxiter)
+    fit_joint(trial, maxiter=2 * maxiter)
     return _trial_values(trial)
 
 
@@ -51,7 +52,7 @@ def _backfit_task(model, i: int, maxiter: int) -> tuple:
     old = trial.components[i]
     trial.remove(old)
     new = trial.add(copy.deepcopy(old.effect))
-    trial.fit(maxiter=2 * maxiter)
+    fit_joint(trial, maxiter=2 * maxiter)
     return _trial_values(trial) + (new.effect, new.specs)
 
 
@@ -233,7 +234,7 @@ def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
         return comp
     with _timed(clock, "joint"):
         _fit_candidate(work, comp.effect, None, 2 * maxiter)         # as it was scored
-        work.fit(maxiter=2 * maxiter)
+        fit_joint(work, maxiter=2 * maxiter)
     if eff.kind != "variance":      # a noise model only reweights the mean fit
         with _timed(clock, "backfit"):
             if work is model and getattr(eff, "shapes_noise", False) and model.can_average() \
@@ -280,8 +281,10 @@ def _carry_back(model, work, comp, maxiter, joint=False):
     model.components = [source[id(c.effect.source)] if _frozen(c) else c.copy()
                         for c in work.components]
     model.nuisance.values["gain"] = np.array(work.nuisance.values["gain"], copy=True)
-    full = joint or any(_frozen(c) for c in work.components)
-    model.fit(trainable=None if full else [], maxiter=2 * maxiter if full else maxiter)
+    if joint or any(_frozen(c) for c in work.components):
+        fit_joint(model, maxiter=2 * maxiter)
+    else:
+        model.fit(trainable=[], maxiter=maxiter)
     return model.components[k]
 
 

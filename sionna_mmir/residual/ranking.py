@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError
+from ..effects.blockwise import fit_joint
 from ..effects.library._sensor_common import chirp_deviation
 from ..effects.model import EffectModel
 from .analysis import _db
@@ -297,7 +298,7 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
         return
     for c, v in zip(replaced, silenced):
         c.values = v
-    cand.fit(cells=train, maxiter=maxiter)
+    fit_joint(cand, train, maxiter)
 
 
 def _has_rest(cand: EffectModel) -> bool:
