@@ -190,17 +190,32 @@ def _previous_rows(out: str) -> list:
         return json.load(f)
 
 
-def _write(args, rows) -> None:
-    """suite.json and suite.md of the rows so far."""
-    with open(os.path.join(args.out, "suite.json"), "w") as f:
-        json.dump(rows, f, indent=1, default=str)
+def _reproduce_line(args) -> str:
+    """The header's "Reproduce:" line: this invocation's command, or with
+    ``--merge`` the line the folder's suite.md already has (its rows come from
+    several invocations)."""
+    if args.merge:
+        path = os.path.join(args.out, "suite.md")
+        if os.path.exists(path):
+            with open(path) as f:
+                old = [ln.rstrip("\n") for ln in f if ln.startswith("Reproduce: ")]
+            if old:
+                return old[0]
     cmd = "comparisons/run_undeclared_suite.py" + "".join(
         f" --{k} {v}" for k, v in (("subset", args.subset), ("chirps", args.chirps),
                                     ("radar", args.radar), ("slope", args.slope),
                                     ("sample-rate", args.sample_rate),
                                     ("samples", args.samples)) if v is not None)
+    return f"Reproduce: `.venv/bin/python {cmd}`"
+
+
+def _write(args, rows) -> None:
+    """suite.json and suite.md of the rows so far."""
+    reproduce = _reproduce_line(args)
+    with open(os.path.join(args.out, "suite.json"), "w") as f:
+        json.dump(rows, f, indent=1, default=str)
     text = [f"# The loop on the independent undeclared-effect suite", "",
-            f"Reproduce: `.venv/bin/python {cmd}`", "",
+            reproduce, "",
             "Truth: the planted effects of `sionna_mmir.independent.undeclared` (no code shared "
             "with the solver or the effects library).", "",
             "s: wall time of the whole loop; processes: the loop's worker processes for a "

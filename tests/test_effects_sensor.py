@@ -561,6 +561,49 @@ def test_19_adc_clipping_gradient():
     _check_gradient(m)
 
 
+def test_19b_first_order_clip_equals_the_reference_clip():
+    """:func:`clip_first_order` (value plus first-order terms at evaluated
+    coefficients) against :func:`smooth_clip` with AD through every
+    operation: equal values, equal gradients in the input below and beyond
+    the rails (on them the slope 1/2), the level's gradient equal to central
+    differences in float64; a second call at a new level follows it (the
+    coefficients are not stale)."""
+    from sionna_mmir.effects.library.adc_clipping import clip_first_order, smooth_clip
+
+    rng = np.random.default_rng(19)
+    v_np = np.concatenate([rng.normal(size=500), np.linspace(-3, 3, 301)]).astype(np.float32)
+    w = mi.TensorXf(rng.normal(size=v_np.size).astype(np.float32))
+    k = 0.05
+    out = []
+    for clip in ("reference", "first_order"):
+        for level in (1.3, 0.9):
+            v = mi.TensorXf(v_np)
+            a = mi.Float(level)
+            dr.enable_grad(v, a)
+            c = smooth_clip(v, a, k * a) if clip == "reference" else clip_first_order(v, a, k)
+            loss = dr.sum(w * c, axis=None)
+            dr.backward(loss)
+            out.append((np.asarray(c.array), np.asarray(dr.grad(v).array), float(dr.grad(a)[0])))
+    for level, ref, fo in zip((1.3, 0.9), out[:2], out[2:]):
+        np.testing.assert_allclose(fo[0], ref[0], rtol=1e-6, atol=1e-6)
+        # exactly on a rail the reference's max and |.| take a one-sided
+        # derivative; the clip's slope there is 1/2 (the logistic at 0)
+        rail = np.abs(np.abs(v_np) - np.float32(level)) == 0
+        assert rail.sum() == 2
+        np.testing.assert_allclose(fo[1][~rail], ref[1][~rail], rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(fo[1][rail], 0.5 * w.numpy()[rail], rtol=1e-5)
+        # the level's gradient against central differences in float64 (the
+        # reference's AD takes the same one-sided derivative at the rails)
+        def total(lv):
+            sp = lambda z: np.logaddexp(0.0, z)                       # noqa: E731
+            vv, sk = v_np.astype(np.float64), k * lv
+            return float(np.sum(w.numpy() * (vv - sk * sp((vv - lv) / sk)
+                                              + sk * sp((-vv - lv) / sk))))
+        h = 1e-6
+        assert fo[2] == pytest.approx((total(level + h) - total(level - h)) / (2 * h), rel=1e-4)
+    assert not np.allclose(out[2][0], out[3][0])            # the level moved the clip
+
+
 def test_20_adc_clipping_bounds_i_and_q():
     radar = _radar(1)
     ctx = EffectContext(radar)

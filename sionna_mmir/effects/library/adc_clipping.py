@@ -43,8 +43,37 @@ dr = ops.dr
 
 
 def smooth_clip(v, a, s):
-    """Softplus clip of a real tensor ``v`` at ``+-a`` with knee width ``s`` (AD)."""
+    """Softplus clip of a real tensor ``v`` at ``+-a`` with knee width ``s``
+    (AD through every operation; the reference for :func:`clip_first_order`)."""
     return v - s * softplus((v - a) / s) + s * softplus((-v - a) / s)
+
+
+def clip_first_order(v, a, k: float):
+    """:func:`smooth_clip` of ``v`` at ``+-a`` with ``s = k a``, written as its
+    value plus its first-order terms in ``v`` and ``a`` at evaluated
+    coefficients: ``c(v0, a0) + c_v (v - v0) + c_a (a - a0)``.
+
+    Equal in value and first derivatives (all that L-BFGS uses); the
+    coefficients are evaluated once, so the backward pass reads two arrays
+    instead of tracing the clip's uses of its input, and the whole chain
+    before it, again for every reduction that needs the adjoint (NOTES.md
+    has the measured evaluation times).  With ``u1 = (v - a) / s``,
+    ``u2 = (-v - a) / s`` and the logistic ``sig``::
+
+        c_v = 1 - sig(u1) - sig(u2)
+        c_a = -k softplus(u1) + sig(u1) (1 + k u1) + k softplus(u2) - sig(u2) (1 + k u2)
+    """
+    v0, a0 = dr.detach(v), dr.detach(a)
+    with dr.suspend_grad():
+        s0 = k * a0
+        u1, u2 = (v0 - a0) / s0, (-v0 - a0) / s0
+        sp1, sp2 = softplus(u1), softplus(u2)
+        g1, g2 = 1.0 / (1.0 + dr.exp(-u1)), 1.0 / (1.0 + dr.exp(-u2))
+        value = v0 - s0 * sp1 + s0 * sp2
+        c_v = 1.0 - g1 - g2
+        c_a = -k * sp1 + g1 * (1.0 + k * u1) + k * sp2 - g2 * (1.0 + k * u2)
+        dr.eval(value, c_v, c_a)
+    return value + c_v * (v - v0) + c_a * (a - a0)
 
 
 class ADCClipping(Effect):
@@ -72,8 +101,8 @@ class ADCClipping(Effect):
 
     def apply(self, x, p, ctx):
         a = dr.exp(scalar(p["log_a"]))
-        s = self.softness * a
-        return (smooth_clip(x[0], a, s), smooth_clip(x[1], a, s))
+        return (clip_first_order(x[0], a, self.softness),
+                clip_first_order(x[1], a, self.softness))
 
     def averaged_counterpart(self, values, ctx, model_input):
         """This clip at ``values`` on chirp-averaged data
@@ -117,12 +146,10 @@ class AveragedClipping(FrozenPart):
             self._dev = ops.tensor(self.deviation)
         C = self.deviation.shape[3]
         shape = tuple(self.deviation.shape[:3]) + (1, self.deviation.shape[4])
-        a = float(np.exp(self.log_a))
-        s = self.source.softness * a
-        a, s = ops.opaque(a), ops.opaque(s)
+        a = ops.opaque(float(np.exp(self.log_a)))
         z = ops.cadd(x, self._dev)
-        return tuple(ops.view(dr.sum(smooth_clip(v, a, s), axis=3), shape) * (1.0 / C)
-                     for v in z)
+        return tuple(ops.view(dr.sum(clip_first_order(v, a, self.source.softness), axis=3),
+                              shape) * (1.0 / C) for v in z)
 
     def variance(self, x, X, p, ctx):
         raise NotImplementedError("AveragedClipping is a mean effect")
