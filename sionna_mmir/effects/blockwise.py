@@ -19,14 +19,16 @@ chirp-varying ones have a chirp-averaged counterpart at fixed values
    evaluated once (:meth:`~.model.EffectModel.frozen_prefix`).
 
 With a white floor the first block is exact where the chirp-varying part is
-added to the static one (a mover): for a chirp-static ``s`` and the rest
-held, ``sum_c |y_c - s - m_c|^2 = C |mean_c y_c - s - mean_c m_c|^2 +
+added to the static one (a mover) and nothing static acts on it afterwards
+(the static block holds the components before the first chirp-varying one
+in the chain): for a chirp-static ``s`` and the rest held, ``sum_c |y_c - s - m_c|^2 = C |mean_c y_c - s - mean_c m_c|^2 +
 const``, because the chirp-to-chirp deviation ``m_c - mean_c m_c`` does not
 depend on ``s``; its optimum is then the full objective's optimum in those
 parameters.  Behind ADC clipping the deviation of the clipped signal depends
 on ``s`` where the clip is active, and the first block is exact only away
 from it.  The descent stops when a cycle lowers the full NLL by less than
-:data:`BLOCK_TOL` per sample, or after :data:`MAX_CYCLES` cycles.
+:data:`BLOCK_TOL` per sample, or after :data:`MAX_CYCLES` cycles; a cycle
+that raises it is undone.
 
 Ego motion is a map of the whole static scene: the deviation it makes is
 the scene moved, a function of every static parameter, so the first block
@@ -61,9 +63,13 @@ def blocks(model, cells=None):
     map of the scene (ego motion, :func:`_maps_scene`).
 
     ``static``: the chirp-static mean and basis components with parameters
-    that neither shape nor spread the noise; ``varying``: every other
-    component with parameters (movers, ego motion, clipping behind them,
-    noise shapers, variance effects)."""
+    that neither shape nor spread the noise and come before every
+    chirp-varying mean component in the chain (the scene a mover is added
+    to; a per-channel gain after it would also scale the mover's
+    chirp-to-chirp deviation, which the chirp average cannot see);
+    ``varying``: every other component with parameters (movers, clipping
+    behind them, the sensor stages after them, noise shapers, variance
+    effects)."""
     C = model.ctx.shape[3]
     if C < 2 or not model.can_average():
         return None
@@ -71,13 +77,17 @@ def blocks(model, cells=None):
         cells = np.asarray(cells, bool)
         if not np.array_equal(cells, np.broadcast_to(cells[..., :1], cells.shape)):
             return None
+    flags, order = model.static_flags(), model._order()
+    moving = [order.index(i) for i, (c, s) in enumerate(zip(model.components, flags))
+              if not s and c.effect.kind == "mean"]
+    first = min(moving, default=len(order))
     static, varying = [], []
-    for i, (c, s) in enumerate(zip(model.components, model.static_flags())):
+    for i, (c, s) in enumerate(zip(model.components, flags)):
         if not c.specs:
             continue
         e = c.effect
         if s and e.kind in ("mean", "basis") and not e.has_spread \
-                and not getattr(e, "shapes_noise", False):
+                and not getattr(e, "shapes_noise", False) and order.index(i) < first:
             static.append(i)
         else:
             varying.append(i)
@@ -110,14 +120,31 @@ def fit_joint(model, cells=None, maxiter: int = 300) -> dict:
     best, cycles = model.nll(cells), 0
     while cycles < MAX_CYCLES:
         cycles += 1
+        kept = _values(model)
         _fit_static(model, static, cells, maxiter)
         model.fit(trainable=varying, cells=cells, maxiter=maxiter)
         nll = model.nll(cells)
+        if nll > best:                      # a cycle that made it worse is undone
+            _restore(model, kept)
+            break
         if not best - nll > BLOCK_TOL:
-            best = min(best, nll)
+            best = nll
             break
         best = nll
     return {"nll": best, "cycles": cycles}
+
+
+def _values(model) -> tuple:
+    """Copies of ``model``'s nuisance and component values."""
+    copy = lambda vals: {k: np.array(v, copy=True) for k, v in vals.items()}   # noqa: E731
+    return copy(model.nuisance.values), [copy(c.values) for c in model.components]
+
+
+def _restore(model, kept) -> None:
+    """Give ``model`` the values :func:`_values` took."""
+    model.nuisance.values = kept[0]
+    for c, v in zip(model.components, kept[1]):
+        c.values = v
 
 
 def _fit_static(model, static, cells, maxiter: int) -> None:
