@@ -328,3 +328,56 @@ def test_12_blockwise_refit_reaches_the_joint_fit():
     assert blockwise.blocks(block, cells[..., :1] & np.ones(ctx.shape[:4], bool)) is not None
     block.add(EgoMotion())
     assert blockwise.blocks(block) is None
+
+
+def test_13_a_static_model_with_a_noise_shaper_is_fitted_on_the_chirp_average():
+    """:meth:`EffectModel.split_averaged`: with every component the same in
+    every chirp, the split NLL's deviation term is the data's own, so the
+    chirp average plus its deviation power scores the same objective.
+    Truth: the full model's split loss and its AD gradients (every key, at
+    values away from the optimum, with a training mask), and a fit on every
+    chirp (the delegation switched off) reaching the same NLL.  Not taken
+    with a mover (chirp-varying) or a mask that splits a channel's chirps."""
+    from sionna_mmir.effects.library.if_filter import IFFilter
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+
+    radar, clean, n = _scene(num_chirps=4, noise=0.05)
+    ctx = EffectContext(radar)
+    m = EffectModel(ctx, clean + n, clean)
+    m.add(ChannelGain())
+    m.add(IFFilter())
+    rng = np.random.default_rng(13)
+    for c in m.components:
+        c.values = {k: v + 0.05 * rng.normal(size=np.shape(v)) for k, v in c.values.items()}
+    cells = np.ones(ctx.shape[:4], bool)
+    cells[:, :, ::3] = False                                   # held-out channels
+    avg = m.split_averaged(cells)
+    assert avg is not None and avg.ctx.shape[3] == 1
+    keys = {(-1, "gain"), (-1, "log_noise")} | {(i, k) for i, c in enumerate(m.components)
+                                                 for k in c.specs}
+    out = []
+    for model, mk in ((m, cells), (avg, cells[..., :1])):
+        mask, cnt = model.mask_tensor(mk)
+        tens = model._tensors(grad_keys=keys)
+        with ops.single_thread():
+            loss = model.loss(tens, mask, cnt)
+            dr.backward(loss)
+            out.append((ops.item(loss), [np.asarray(dr.grad(tens[k]), np.float64)
+                                         for k in sorted(keys)]))
+    assert out[1][0] == pytest.approx(out[0][0], rel=1e-5)
+    for a, b in zip(out[0][1], out[1][1]):
+        np.testing.assert_allclose(b, a, rtol=2e-3, atol=1e-4 * max(np.abs(a).max(), 1e-3))
+    full = m.copy()
+    m.fit(cells=cells, maxiter=200)                            # on the average
+    orig = EffectModel.split_averaged
+    try:
+        EffectModel.split_averaged = lambda self, cells=None: None
+        full.fit(cells=cells, maxiter=200)                     # on every chirp
+    finally:
+        EffectModel.split_averaged = orig
+    assert m.nll(cells) == pytest.approx(full.nll(cells), abs=2e-5)
+    bad = cells.copy()
+    bad[0, 0, 1, 0] = False
+    assert m.split_averaged(bad) is None
+    m.add(MovingScatterer())
+    assert m.split_averaged() is None

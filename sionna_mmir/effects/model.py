@@ -313,6 +313,10 @@ class EffectModel:
 
     #: attributes rebuilt from their NumPy sources when a model is unpickled
     _TENSORS = ("Y", "y_t", "b_t", "basis_t")
+    #: on a :meth:`split_averaged` model: ``(S, C)``, the data's chirp-to-chirp
+    #: deviation power ``sum_c |Y_c - mean_c Y|^2`` ``[F, T, R, 1, N]`` and the
+    #: chirp loops ``C`` behind each averaged sample
+    _deviation = None
 
     def __getstate__(self):
         """Pickle without the Dr.Jit tensors (rebuilt from ``Y_numpy``, ``b``
@@ -702,7 +706,8 @@ class EffectModel:
         """Whether the NLL is split into the chirp mean and the chirp-to-chirp
         deviation (:meth:`_split_loss`): with two or more chirp loops and a
         component that shapes the receiver noise (an IF filter)."""
-        return self.ctx.shape[3] > 1 and bool(self._noise_shapers())
+        return (self.ctx.shape[3] > 1 or self._deviation is not None) \
+            and bool(self._noise_shapers())
 
     def noise_bins(self) -> np.ndarray:
         """``[N]`` bool: the range bins whose chirp-to-chirp scatter in the
@@ -739,6 +744,8 @@ class EffectModel:
         the plain likelihood a noise notch at near-DC bins makes any static
         misfit there cost tens of dB more, and a filter's fit drops the notch
         it is seen by."""
+        if self._deviation is not None:
+            return self._split_loss_averaged(tens, mask, n, frozen)
         C, N = self.ctx.shape[3], self.ctx.shape[4]
         shape = self.ctx.shape[:3] + (1, N)
         _, X, v = self._forward(tens, frozen)
@@ -752,6 +759,49 @@ class EffectModel:
         keep = ops.tensor(self.noise_bins().astype(np.float64).reshape(1, 1, 1, 1, N))
         dev_term = dr.sum((D2 / v + ((C - 1) / C) * dr.log(v)) * mask * keep, axis=None)
         return (mean_term + dev_term) / n
+
+    def _split_loss_averaged(self, tens, mask, n, frozen=None):
+        """:meth:`_split_loss` of the full model on its :meth:`split_averaged`
+        counterpart (``mask`` and ``n`` over the averaged cells): with a
+        chirp-static mean the deviation ``D_c`` is the data's own, so its
+        term is ``sum (S / v + (C - 1) log v)`` over the averaged cells."""
+        S, C = self._deviation
+        N = self.ctx.shape[4]
+        _, X, v = self._forward(tens, frozen)
+        R = (self.Y[0] - X[0], self.Y[1] - X[1])
+        e_m = dr.sum(ops.abs2(R) * mask, axis=None) / n
+        mean_term = n * (dr.log(e_m + 1e-30) + 1.0)
+        keep = ops.tensor(self.noise_bins().astype(np.float64).reshape(1, 1, 1, 1, N))
+        dev_term = dr.sum((ops.tensor(S) / v + (C - 1) * dr.log(v)) * mask * keep, axis=None)
+        return (mean_term + dev_term) / (n * C)
+
+    def split_averaged(self, cells=None) -> "EffectModel | None":
+        """This model on the chirp average, scoring exactly its split NLL
+        (:meth:`_split_loss`), or None where that is not exact.
+
+        With a noise shaper (an IF filter) the NLL splits into the chirp
+        mean and the chirp-to-chirp deviation; where every component is the
+        same in every chirp (:meth:`static_flags`, noise models included)
+        the residual's deviation is the data's own, so the deviation term
+        needs only its power per averaged sample, computed once.  A fit
+        there sees the same objective at ``1 / C`` of the work.  Needs two or
+        more chirp loops and ``cells`` (boolean ``[F, T, R, C]``) holding
+        every chirp of their channels; the white floor keeps its value (it
+        is the single chirp's, as in the deviation term)."""
+        C = self.ctx.shape[3]
+        if C < 2 or not self.split_likelihood() or not all(self.static_flags()):
+            return None
+        if cells is not None:
+            cells = np.asarray(cells, bool)
+            if not np.array_equal(cells, np.broadcast_to(cells[..., :1], cells.shape)):
+                return None
+        bins = self.noise_bins()
+        new = self.chirp_averaged()
+        new.nuisance.values["log_noise"] = np.array(self.nuisance.values["log_noise"], copy=True)
+        D = self.Y_numpy - self.Y_numpy.mean(axis=3, keepdims=True)
+        new._deviation = (np.sum(np.abs(D) ** 2, axis=3, keepdims=True), C)
+        new._noise_bins = bins
+        return new
 
     # ----------------------------------------------------------------- fit
     def _rescale_gain(self, cells=None) -> None:
@@ -793,6 +843,9 @@ class EffectModel:
         mask = np.ones(self.ctx.shape[:4], bool) if cells is None else np.asarray(cells, bool)
         r2 = np.abs(self.y - self.mean_variance_numpy()[0]) ** 2
         level = float(np.mean(r2[mask]))
+        if self._deviation is not None:     # every chirp's: mean |y_c - x|^2 = |mean y - x|^2 + S / C
+            S, C = self._deviation
+            level += float(np.mean(S[mask])) / C
         old = np.array(self.nuisance.values["log_noise"], np.float64)
         before = self.nll(cells)
         self.nuisance.values["log_noise"] = np.array([np.log(max(level, 1e-12))])
@@ -807,6 +860,15 @@ class EffectModel:
         noise floor are fitted too unless ``nuisance=False``.  Returns
         ``{"nll", "iterations", "success"}``.
         """
+        work = self.split_averaged(cells)
+        if work is not None:                   # the same objective at 1 / C of the work
+            out = work.fit(trainable, None if cells is None else np.asarray(cells)[..., :1],
+                           maxiter, nuisance)
+            self.nuisance.values = {k: np.array(v, copy=True)
+                                    for k, v in work.nuisance.values.items()}
+            for c, w in zip(self.components, work.components):
+                c.values = {k: np.array(v, copy=True) for k, v in w.values.items()}
+            return out
         idx = list(range(len(self.components))) if trainable is None else list(trainable)
         keys = []
         if nuisance:
