@@ -313,10 +313,14 @@ class EffectModel:
 
     #: attributes rebuilt from their NumPy sources when a model is unpickled
     _TENSORS = ("Y", "y_t", "b_t", "basis_t")
-    #: on a :meth:`split_averaged` model: ``(S, C)``, the data's chirp-to-chirp
-    #: deviation power ``sum_c |Y_c - mean_c Y|^2`` ``[F, T, R, 1, N]`` and the
-    #: chirp loops ``C`` behind each averaged sample
+    #: on a :meth:`split_averaged` model: ``(S, S_t, C)``, the data's
+    #: chirp-to-chirp deviation power ``sum_c |Y_c - mean_c Y|^2``
+    #: ``[F, T, R, 1, N]`` (NumPy and device copies) and the chirp loops ``C``
+    #: behind each averaged sample
     _deviation = None
+    #: ``(Y_numpy, S)``: the data's deviation power of this (full) model,
+    #: computed once for that data array (copies share it)
+    _deviation_power = None
 
     def __getstate__(self):
         """Pickle without the Dr.Jit tensors (rebuilt from ``Y_numpy``, ``b``
@@ -765,14 +769,14 @@ class EffectModel:
         counterpart (``mask`` and ``n`` over the averaged cells): with a
         chirp-static mean the deviation ``D_c`` is the data's own, so its
         term is ``sum (S / v + (C - 1) log v)`` over the averaged cells."""
-        S, C = self._deviation
+        _, S, C = self._deviation
         N = self.ctx.shape[4]
         _, X, v = self._forward(tens, frozen)
         R = (self.Y[0] - X[0], self.Y[1] - X[1])
         e_m = dr.sum(ops.abs2(R) * mask, axis=None) / n
         mean_term = n * (dr.log(e_m + 1e-30) + 1.0)
         keep = ops.tensor(self.noise_bins().astype(np.float64).reshape(1, 1, 1, 1, N))
-        dev_term = dr.sum((ops.tensor(S) / v + (C - 1) * dr.log(v)) * mask * keep, axis=None)
+        dev_term = dr.sum((S / v + (C - 1) * dr.log(v)) * mask * keep, axis=None)
         return (mean_term + dev_term) / (n * C)
 
     def split_averaged(self, cells=None) -> "EffectModel | None":
@@ -796,10 +800,15 @@ class EffectModel:
             if not np.array_equal(cells, np.broadcast_to(cells[..., :1], cells.shape)):
                 return None
         bins = self.noise_bins()
+        cached = self._deviation_power          # the data's: once per data array
+        if cached is None or cached[0] is not self.Y_numpy:
+            D = self.Y_numpy - self.Y_numpy.mean(axis=3, keepdims=True)
+            self._deviation_power = cached = (self.Y_numpy,
+                                              np.sum(np.abs(D) ** 2, axis=3, keepdims=True))
+        S = cached[1]
         new = self.chirp_averaged()
         new.nuisance.values["log_noise"] = np.array(self.nuisance.values["log_noise"], copy=True)
-        D = self.Y_numpy - self.Y_numpy.mean(axis=3, keepdims=True)
-        new._deviation = (np.sum(np.abs(D) ** 2, axis=3, keepdims=True), C)
+        new._deviation = (S, ops.tensor(S), C)
         new._noise_bins = bins
         return new
 
@@ -844,7 +853,7 @@ class EffectModel:
         r2 = np.abs(self.y - self.mean_variance_numpy()[0]) ** 2
         level = float(np.mean(r2[mask]))
         if self._deviation is not None:     # every chirp's: mean |y_c - x|^2 = |mean y - x|^2 + S / C
-            S, C = self._deviation
+            S, _, C = self._deviation
             level += float(np.mean(S[mask])) / C
         old = np.array(self.nuisance.values["log_noise"], np.float64)
         before = self.nll(cells)
