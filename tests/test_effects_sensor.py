@@ -689,6 +689,19 @@ def test_21b_adc_clipping_of_a_static_scene_is_fitted_on_the_chirp_average():
     assert np.mean(np.abs(full - clip) > 1e-3) > 0.01                 # the clip is active
     np.testing.assert_allclose(avg.mean_variance_numpy()[0], full.mean(axis=3, keepdims=True),
                                atol=1e-5 * np.abs(full).max())
+    # the averaged clip's gradient (chirp means of its value and slope) in a
+    # static parameter before it equals central differences of the NLL
+    from sionna_mmir.effects.library.channel_gain import ChannelGain
+
+    gained = moving.copy()
+    gained.components = []
+    g = gained.add(ChannelGain())
+    g.values = {k: v + 0.05 * np.random.default_rng(3).normal(size=v.shape)
+                for k, v in g.values.items()}
+    gained.components += [c.copy() for c in moving.components]
+    avg = gained.chirp_averaged(freeze=True)
+    assert isinstance(avg.components[2].effect, AveragedClipping)
+    _check_gradient(avg)
 
 
 # ============================================================= noise floor

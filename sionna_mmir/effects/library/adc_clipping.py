@@ -39,7 +39,7 @@ from ..base import Effect, ParamSpec
 from ..frozen import FrozenPart
 from ._sensor_common import check_float, scalar, softplus
 
-dr = ops.dr
+dr, mi = ops.dr, ops.mi
 
 
 def smooth_clip(v, a, s):
@@ -65,15 +65,23 @@ def clip_first_order(v, a, k: float):
     """
     v0, a0 = dr.detach(v), dr.detach(a)
     with dr.suspend_grad():
-        s0 = k * a0
-        u1, u2 = (v0 - a0) / s0, (-v0 - a0) / s0
-        sp1, sp2 = softplus(u1), softplus(u2)
-        g1, g2 = 1.0 / (1.0 + dr.exp(-u1)), 1.0 / (1.0 + dr.exp(-u2))
-        value = v0 - s0 * sp1 + s0 * sp2
-        c_v = 1.0 - g1 - g2
-        c_a = -k * sp1 + g1 * (1.0 + k * u1) + k * sp2 - g2 * (1.0 + k * u2)
+        value, c_v, c_a = clip_terms(v0, a0, k)
         dr.eval(value, c_v, c_a)
     return value + c_v * (v - v0) + c_a * (a - a0)
+
+
+def clip_terms(v0, a0, k: float) -> tuple:
+    """``(c, c_v, c_a)``: :func:`smooth_clip` of ``v0`` at ``+-a0`` (knee
+    ``k a0``) and its derivatives in ``v`` and ``a`` there (no AD; see
+    :func:`clip_first_order`)."""
+    s0 = k * a0
+    u1, u2 = (v0 - a0) / s0, (-v0 - a0) / s0
+    sp1, sp2 = softplus(u1), softplus(u2)
+    g1, g2 = 1.0 / (1.0 + dr.exp(-u1)), 1.0 / (1.0 + dr.exp(-u2))
+    value = v0 - s0 * sp1 + s0 * sp2
+    c_v = 1.0 - g1 - g2
+    c_a = -k * sp1 + g1 * (1.0 + k * u1) + k * sp2 - g2 * (1.0 + k * u2)
+    return value, c_v, c_a
 
 
 class ADCClipping(Effect):
@@ -142,14 +150,29 @@ class AveragedClipping(FrozenPart):
         self._dev = None
 
     def apply(self, x, p, ctx):
-        if self._dev is None:
-            self._dev = ops.tensor(self.deviation)
+        """``mean_c clip(x + d_c)`` as its value plus its first-order term in
+        ``x`` at evaluated coefficients (:func:`clip_first_order`): the chirp
+        means of the clip and of its slope, ``x0`` the evaluated input,
+        ``mean_c clip(x0 + d_c) + mean_c clip'(x0 + d_c) (x - x0)``.  The
+        ``C`` clipped copies are computed once per evaluation outside AD; the
+        graph the gradient runs through has the averaged input's size."""
         C = self.deviation.shape[3]
+        if self._dev is None:        # chirps innermost: [F, T, R, N, C], flat
+            d = np.moveaxis(self.deviation, 3, 4).ravel()
+            self._dev = (mi.Float(np.ascontiguousarray(d.real, np.float32)),
+                         mi.Float(np.ascontiguousarray(d.imag, np.float32)))
         shape = tuple(self.deviation.shape[:3]) + (1, self.deviation.shape[4])
         a = ops.opaque(float(np.exp(self.log_a)))
-        z = ops.cadd(x, self._dev)
-        return tuple(ops.view(dr.sum(clip_first_order(v, a, self.source.softness), axis=3),
-                              shape) * (1.0 / C) for v in z)
+        out = []
+        for v, d in zip(x, self._dev):
+            v0 = dr.detach(v)
+            with dr.suspend_grad():
+                value, c_v, _ = clip_terms(dr.repeat(v0.array, C) + d, a, self.source.softness)
+                mean, slope = (mi.TensorXf(dr.block_sum(t, C) * (1.0 / C), shape)
+                               for t in (value, c_v))
+                dr.eval(mean, slope)
+            out.append(mean + slope * (v - v0))
+        return tuple(out)
 
     def variance(self, x, X, p, ctx):
         raise NotImplementedError("AveragedClipping is a mean effect")
