@@ -217,7 +217,8 @@ def test_10_an_if_filter_is_scored_on_every_chirp_a_gain_on_the_chirp_average():
     model = EffectModel(ctx, meas, clean)
     tiers = _Tiers(model, 3, 0, "auto")
     scores = {c.name: c for c in tiers.rank([IFFilter(), ChannelGain()], 1.0, 50, None)}
-    held_out = {k: c.gain / c.gain_per_sample for k, c in scores.items()}
+    # (a candidate raced out after its first fold has seen a third of them)
+    held_out = {k: c.gain / c.gain_per_sample * 3 / len(c.fold_gains) for k, c in scores.items()}
     assert held_out["if_filter"] == pytest.approx(clean.size)
     assert held_out["channel_gain"] == pytest.approx(clean.size / radar.num_chirps)
 
@@ -424,6 +425,48 @@ def test_14c_fold_fits_report_the_floor_of_a_static_looking_mover():
         (score,) = rank_candidates(m, [MovingScatterer()], folds, maxiter=40)
         assert score.gain > 0
         assert score.gain_floor == pytest.approx(floor), (floor, score)
+
+
+def test_14d_candidates_on_every_chirp_race_on_their_first_fold():
+    """On a model fitted on every chirp of several chirp loops a candidate is
+    fitted on its first fold, and on the others only when its held-out gain
+    there is positive: a walker the scene lacks keeps all three folds and
+    the same fold gains as without the race; a channel gain with nothing to
+    explain stops after a non-positive first fold, with that fold's gain; on
+    the chirp average nothing races (truth: the scores of the same fits run
+    on every fold, ``race=False``)."""
+    from helpers import direct_adc, point_target_delays
+    from sionna_mmir.effects.library.dc_offset import DCOffset
+    from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
+    from sionna_mmir.effects.library.scatterer import unit_vectors
+    from sionna_mmir.residual.ranking import rank_candidates
+
+    radar = RadarConfig.awr1843(num_chirps=16, num_samples=64)
+    ctx = EffectContext(radar)
+
+    def point(r, az, rate, amp):
+        return direct_adc(radar, amp, point_target_delays(radar, r * unit_vectors(az)), rate)[None]
+
+    base = point(3.3, 0.0, 0.0, 1.0)
+    y = base + point(2.4, 30.0, 2 * 1.0 / C, 0.05) + _noise(base.shape, 0.01, 7)
+    m = EffectModel(ctx, y, base)
+    folds = cv_folds(ctx.shape[:4], 3)
+    cands = [MovingScatterer(), ChannelGain(), DCOffset()]
+    full = {c.name: c for c in rank_candidates(m, cands, folds, maxiter=40, race=False)}
+    raced = {c.name: c for c in rank_candidates(m, cands, folds, maxiter=40)}
+    assert full["moving_scatterer"].gain > 1e4
+    assert full["channel_gain"].fold_gains[0] <= 0 < full["dc_offset"].fold_gains[0]
+    for name, c in full.items():
+        r = raced[name]
+        if c.fold_gains[0] > 0:
+            assert r.fold_gains == pytest.approx(c.fold_gains, rel=1e-6, abs=1e-6)
+        else:
+            assert r.fold_gains == pytest.approx(c.fold_gains[:1], rel=1e-6, abs=1e-6)
+            assert r.score <= 0
+    avg = m.chirp_averaged()
+    avg_folds = cv_folds(avg.ctx.shape[:4], 3)
+    (gain,) = rank_candidates(avg, [ChannelGain()], avg_folds, maxiter=40)
+    assert len(gain.fold_gains) == 3
 
 
 def test_15_a_noise_model_is_scored_on_the_chirp_to_chirp_scatter():

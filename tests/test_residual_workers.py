@@ -44,6 +44,24 @@ def test_02_pool_returns_results_in_task_order_and_reports_each_task_once():
     assert pickle.loads(pickle.dumps(FitPool(2))).workers == 2
 
 
+def test_02b_follow_up_tasks_run_after_the_result_that_calls_for_them():
+    """``follow(i, result)`` appends tasks that start once a worker is free;
+    the results list holds the given tasks, then each follow-up in the order
+    it was asked for, and is the same on processes and here (a chain: every
+    multiple of 3 below 10 asks for the next one)."""
+    import operator
+
+    def follow(i, r):
+        return [(r + 3,)] if r % 3 == 0 and r < 10 else []
+
+    for workers in (1, 2):
+        seen = []
+        out = FitPool(workers).map(operator.add, 0, [(0,), (1,)], done=seen.append,
+                                   follow=follow)
+        assert out == [0, 1, 3, 6, 9, 12]
+        assert sorted(seen) == list(range(6))
+
+
 class _Eff:
     """A toy effect: only its identity matters."""
 

@@ -370,23 +370,28 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
 
 
 def rank_candidates(model: EffectModel, candidates, folds, penalty=BIC,
-                    maxiter: int = 150, progress=None, pool=SERIAL) -> list:
+                    maxiter: int = 150, progress=None, pool=SERIAL, race: bool = True) -> list:
     """Held-out scores of ``candidates`` on top of ``model``, best first.
 
     The (candidate, fold) fits are independent and run on ``pool``
     (:class:`~.workers.FitPool`); ``progress(name)`` follows each candidate
-    whose folds are all fitted."""
-    return rank_groups([(model, candidates, folds)], penalty, maxiter, progress, pool)[0]
+    whose folds are all fitted; ``race`` as in :func:`rank_groups`."""
+    return rank_groups([(model, candidates, folds)], penalty, maxiter, progress, pool,
+                       race)[0]
 
 
-def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SERIAL) -> list:
+def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SERIAL,
+                race: bool = True) -> list:
     """:func:`rank_candidates` for several ``(model, candidates, folds)``
     groups at once (the data tiers of a round), one list per group.
 
     The fold bases of every group are fitted in one call on ``pool``, then
     every (candidate, fold) fit in another, the last group's first: the
     groups' fits share the worker processes instead of waiting for each
-    other, and the longest (full-data) fits start first."""
+    other, and the longest (full-data) fits start first.  With ``race``, a
+    candidate fitted on every chirp of several chirp loops (the costly
+    ones) is fitted on its first fold first, and on the others only when its
+    held-out gain there is positive (:func:`_races`)."""
     groups = [(m, list(c), f) for m, c, f in groups]
     base_tasks = [(g, k, maxiter, _base_needs(m, c))
                   for g, (m, c, f) in enumerate(groups) for k in range(len(f))]
@@ -400,25 +405,57 @@ def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SER
             base.nuisance.values = values
             per.append((train, base, scores, float((~train).sum()) * m.ctx.shape[-1]))
         bases.append(per)
-    tasks, left = [], {}
+    tasks, keys, left, racing = [], [], {}, set()
     for g in reversed(range(len(groups))):
         m, cands, folds = groups[g]
+        first = 1 if race and _races(m, len(folds)) else len(folds)
         for i, eff in enumerate(cands):
-            left[(g, i)] = len(folds)
+            left[(g, i)] = first
+            if first < len(folds):
+                racing.add((g, i))
             dev = eff.kind == "variance" and m.ctx.shape[3] > 1
-            tasks += [(g, k, eff, maxiter, dev, (g, i)) for k in range(len(folds))]
+            tasks += [(g, k, eff, maxiter, dev) for k in range(first)]
+            keys += [(g, i)] * first
+
+    def follow(t, fit):
+        (g, i), (_, k, eff, _, dev) = keys[t], tasks[t]
+        if (g, i) not in racing or _fold_gain(bases[g][0], fit) <= 0:
+            return []
+        racing.discard((g, i))
+        more = [(g, j, eff, maxiter, dev) for j in range(1, len(groups[g][2]))]
+        tasks.extend(more)
+        keys.extend([(g, i)] * len(more))
+        left[(g, i)] += len(more)
+        return more
 
     def done(t):
-        key = tasks[t][-1]
+        key = keys[t]
         left[key] -= 1
         if left[key] == 0 and progress is not None:
             progress(groups[key[0]][1][key[1]].name)
 
-    fits = pool.map(_candidate_task, [[(b[0], b[1]) for b in per] for per in bases],
-                    [t[:-1] for t in tasks], done=done)
-    by_key = {(t[-1], t[1]): fit for t, fit in zip(tasks, fits)}    # ((group, cand), fold)
+    shared = [[(b[0], b[1]) for b in per] for per in bases]
+    fits = pool.map(_candidate_task, shared, list(tasks), done=done, follow=follow)
+    by_key = {(keys[t], tasks[t][1]): fit for t, fit in enumerate(fits)}  # ((group, cand), fold)
     return [_scores(g, cands, bases[g], by_key, penalty)
             for g, (_, cands, _) in enumerate(groups)]
+
+
+def _races(model, n_folds: int) -> bool:
+    """Whether candidates on ``model`` are raced (:func:`rank_groups`): fitted
+    on every chirp of several chirp loops, where one fold fit costs ``C``
+    times a fit on the chirp average (ego motion, an IF filter or a second
+    mover beside an adopted mover: 15-60 s of a round's fits each).  A
+    candidate whose held-out gain is not positive on a third of the channels
+    is not adopted in that round; in the suite's reports a candidate raced
+    out that way was never a planted effect that round's ranking chose."""
+    return model.ctx.shape[3] > 1 and n_folds > 1
+
+
+def _fold_gain(base, fit) -> float:
+    """Held-out NLL reduction [nats] of one (candidate, fold) ``fit`` against
+    its fold ``base`` (an entry of :func:`rank_groups`'s bases)."""
+    return _base_nll(base[2], fit) - fit["nll"] * base[3]
 
 
 def _base_nll(base: dict, fit: dict) -> float:
@@ -447,11 +484,12 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
         gains, n_tot, cell_gains, energy, secs = [], 0.0, [], [0.0, 0.0], 0.0
         floors, memory = [], []
         for k, (train, _, base, n_test) in enumerate(bases):
-            fit = fits[((g, i), k)]
+            fit = fits.get(((g, i), k))
+            if fit is None:                     # raced out after its first fold
+                continue
             secs += fit["s"]
             floors.append(fit["floor"])
-            nll0 = _base_nll(base, fit)
-            gains.append(nll0 - fit["nll"] * n_test)
+            gains.append(_fold_gain(bases[k], fit))
             if eff.kind == "variance":
                 cell_gains.append(base["slots"] - fit["slots"])
                 memory.append(fit["memory"])

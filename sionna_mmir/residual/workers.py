@@ -154,29 +154,42 @@ class FitPool:
     def __init__(self, workers=1):
         self.workers = check_workers(workers)
 
-    def map(self, fn, shared, tasks, done=None) -> list:
+    def map(self, fn, shared, tasks, done=None, follow=None) -> list:
         """``[fn(shared, *args) for args in tasks]``, in task order.
 
         ``fn`` must be a module-level function (workers import it by name);
         ``shared`` and the task arguments must pickle.  ``done(i)`` is called
-        as task ``i`` finishes (in any order)."""
+        as task ``i`` finishes (in any order).  ``follow(i, result)``, if
+        given, returns further tasks that task ``i``'s result calls for; they
+        are appended to the list (their results follow in the order they
+        were appended) and start as soon as a worker is free."""
         tasks = [tuple(t) for t in tasks]
-        if self.workers <= 1 or len(tasks) <= 1:
-            return _serial(fn, shared, tasks, done)
-        from concurrent.futures import as_completed
+        if self.workers <= 1 or (len(tasks) <= 1 and follow is None):
+            return _serial(fn, shared, tasks, done, follow)
+        from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 
+        given = len(tasks)
         try:
             with self._on_workers(shared) as (ex, path):
                 futures = {ex.submit(_call, fn, path, t): i for i, t in enumerate(tasks)}
-                for fut in as_completed(futures):
-                    fut.result()
-                    if done is not None:
-                        done(futures[fut])
-                return [fut.result() for fut in futures]
+                results, pending = {}, set(futures)
+                while pending:
+                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in finished:
+                        i = futures[fut]
+                        results[i] = fut.result()
+                        for t in (follow(i, results[i]) if follow is not None else ()):
+                            tasks.append(tuple(t))
+                            new = ex.submit(_call, fn, path, tasks[-1])
+                            futures[new] = len(tasks) - 1
+                            pending.add(new)
+                        if done is not None:
+                            done(i)
+                return [results[i] for i in range(len(tasks))]
         except BrokenProcessPool:
             self._died()
-            return _serial(fn, shared, tasks, done)
+            return _serial(fn, shared, tasks[:given], done, follow)
 
     def first(self, fn, shared, tasks, accept):
         """``(i, fn(shared, *tasks[i]))`` for the first ``i`` in task order whose
@@ -238,12 +251,15 @@ def _serial_first(fn, shared, tasks, accept):
     return None
 
 
-def _serial(fn, shared, tasks, done):
-    out = []
-    for i, t in enumerate(tasks):
-        out.append(fn(shared, *t))
+def _serial(fn, shared, tasks, done, follow=None):
+    out, tasks, i = [], list(tasks), 0
+    while i < len(tasks):
+        out.append(fn(shared, *tasks[i]))
+        if follow is not None:
+            tasks += [tuple(t) for t in follow(i, out[-1])]
         if done is not None:
             done(i)
+        i += 1
     return out
 
 
