@@ -34,6 +34,9 @@ def _args(argv):
     p.add_argument("--scenes", default=",".join(SCENES))
     p.add_argument("--truths", default=",".join(TRUTHS))
     p.add_argument("--iterations", type=int, default=6)
+    p.add_argument("--models", default=",".join(MODELS),
+                   help="fitted models: 'sionna' and mmIR variants of "
+                        "sionna_mmir.compare.evidence.VARIANTS (default %(default)s)")
     p.add_argument("--cache", default=DEFAULT_CACHE)
     p.add_argument("--out", default=HERE)
     p.add_argument("--stem", default="transfer")
@@ -52,14 +55,15 @@ def _ready(truth, scene, model, budget, cache) -> bool:
             and os.path.exists(truth_path(cache, truth, scene, "awr1843")))
 
 
-def run(truths, scenes, budget, cache, table_only=False, only_ready=False) -> list:
+def run(truths, scenes, budget, cache, table_only=False, only_ready=False,
+        models=MODELS) -> list:
     """All transfer cells (each needs its cascade fit and the AWR1843 truth)."""
     from sionna_mmir.compare.evidence import cell_stem, load_cell, run_cell
 
     results = []
     for truth in truths:
         for scene in scenes:
-            for model in MODELS:
+            for model in models:
                 res, _ = load_cell(cell_stem(cache, "transfer", truth, scene, model, budget))
                 if only_ready and res is None and not _ready(truth, scene, model, budget, cache):
                     continue
@@ -79,12 +83,12 @@ def run(truths, scenes, budget, cache, table_only=False, only_ready=False) -> li
     return results
 
 
-def _verdict(results, truths) -> list:
+def _verdict(results, truths, models=MODELS) -> list:
     from sionna_mmir.compare.evidence_report import mean_std, metric, model_label, pick
 
     out = []
     for t in truths:
-        for m in MODELS:
+        for m in models:
             sel = pick(results, truth=t, model=m)
             if not sel:
                 continue
@@ -97,7 +101,7 @@ def _verdict(results, truths) -> list:
     return out
 
 
-def markdown(results, truths, scenes, budget, wall_s) -> list:
+def markdown(results, truths, scenes, budget, wall_s, models=MODELS) -> list:
     from sionna_mmir.compare.evidence_report import (TRUTH_LABELS, cell_value, compute_minutes,
                                                      model_truth_columns, per_scene_lines,
                                                      summary_lines)
@@ -107,7 +111,8 @@ def markdown(results, truths, scenes, budget, wall_s) -> list:
         "",
         "Reproduce: `.venv/bin/python comparisons/run_transfer.py "
         f"--iterations {budget.iterations} --scenes {','.join(scenes)} "
-        f"--truths {','.join(truths)}` "
+        f"--truths {','.join(truths)}"
+        + ("" if tuple(models) == MODELS else f" --models {','.join(models)}") + "` "
         "(reuses the cascade fits of `run_cross_truth.py`; the transfer cells took "
         f"{compute_minutes(results):.0f} min of wall time in all, on 2 CPU cores shared with "
         "other jobs).",
@@ -126,14 +131,15 @@ def markdown(results, truths, scenes, budget, wall_s) -> list:
     lines += [f"- `{t}`: {TRUTH_LABELS[t]}" for t in truths]
     for stage in ("before", "after"):
         lines += ["", f"## AWR1843 RA correlation {stage} fitting, mean +/- std over scenes", ""]
-        lines += summary_lines(results, list(MODELS), truths, row_key="model", col_key="truth",
+        lines += summary_lines(results, list(models), truths, row_key="model", col_key="truth",
                                stage=stage, col_label=lambda t: f"truth: {t}")
     lines += ["", "Acceptance (mean after > mean before, per truth):", ""]
-    lines += _verdict(results, truths)
+    lines += _verdict(results, truths, models)
     cols = model_truth_columns(truths, "{label} [truth: {truth}] before -> after",
                                lambda sel, t, m: (
                                    f"{cell_value(sel, 'before', truth=t, model=m)} "
-                                   f"-> {cell_value(sel, 'after', truth=t, model=m)}"))
+                                   f"-> {cell_value(sel, 'after', truth=t, model=m)}"),
+                               models=models)
     lines += ["", "## Per scene: AWR1843 RA corr before -> after", ""]
     lines += per_scene_lines(results, scenes, cols)
     return lines
@@ -147,10 +153,11 @@ def main(argv=None) -> int:
     truths, scenes = a.truths.split(","), a.scenes.split(",")
     budget = Budget(iterations=a.iterations)
     t0 = time.perf_counter()
-    results = run(truths, scenes, budget, a.cache, a.table_only, a.only_ready)
+    models = tuple(a.models.split(","))
+    results = run(truths, scenes, budget, a.cache, a.table_only, a.only_ready, models)
     wall = time.perf_counter() - t0
     write_rows(results, a.out, a.stem)
-    lines = markdown(results, truths, scenes, budget, wall)
+    lines = markdown(results, truths, scenes, budget, wall, models)
     write_markdown(lines, a.out, a.stem)
     return 0
 
