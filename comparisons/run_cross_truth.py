@@ -16,7 +16,6 @@ interrupted run resumes.
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
@@ -26,21 +25,9 @@ MODELS = ("table2", "sionna")
 
 
 def _args(argv):
-    from sionna_mmir.benchmark_scenes import SCENES
-    from sionna_mmir.compare.evidence import DEFAULT_CACHE
-    from sionna_mmir.compare.truths import TRUTHS
+    from sionna_mmir.compare.evidence_report import table_parser
 
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--scenes", default=",".join(SCENES))
-    p.add_argument("--truths", default=",".join(TRUTHS))
-    p.add_argument("--iterations", type=int, default=6)
-    p.add_argument("--cache", default=DEFAULT_CACHE)
-    p.add_argument("--out", default=HERE)
-    p.add_argument("--stem", default="cross_truth")
-    p.add_argument("--models", default=",".join(MODELS),
-                   help="models to run (the table shows all cached cells)")
-    p.add_argument("--table-only", action="store_true",
-                   help="write the table from the cached cells, run nothing")
+    p = table_parser(__doc__, HERE, "cross_truth", MODELS)
     return p.parse_args(argv)
 
 

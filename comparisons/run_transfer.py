@@ -16,7 +16,6 @@ materials, isotropic elements.
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
@@ -26,24 +25,12 @@ MODELS = ("table2", "sionna")
 
 
 def _args(argv):
-    from sionna_mmir.benchmark_scenes import SCENES
-    from sionna_mmir.compare.evidence import DEFAULT_CACHE
-    from sionna_mmir.compare.truths import TRUTHS
+    from sionna_mmir.compare.evidence_report import table_parser
 
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--scenes", default=",".join(SCENES))
-    p.add_argument("--truths", default=",".join(TRUTHS))
-    p.add_argument("--iterations", type=int, default=6)
-    p.add_argument("--models", default=",".join(MODELS),
-                   help="fitted models: 'sionna' and mmIR variants of "
-                        "sionna_mmir.compare.evidence.VARIANTS (default %(default)s)")
-    p.add_argument("--cache", default=DEFAULT_CACHE)
-    p.add_argument("--out", default=HERE)
-    p.add_argument("--stem", default="transfer")
+    p = table_parser(__doc__, HERE, "transfer", MODELS)
     p.add_argument("--only-ready", action="store_true",
                    help="skip cells whose cascade fit or AWR1843 truth is not cached yet "
                         "(for running beside run_cross_truth.py)")
-    p.add_argument("--table-only", action="store_true")
     return p.parse_args(argv)
 
 

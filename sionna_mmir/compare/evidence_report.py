@@ -177,3 +177,29 @@ def leader_notes(results: list, truths: list, models=("table2", "sionna"),
 def compute_minutes(results: list) -> float:
     """Sum of the cells' wall times [min] (each cell ran in its own interpreter)."""
     return float(sum(float(r.get("wall_s", 0.0)) for r in results)) / 60.0
+
+
+def table_parser(doc: str, out_dir: str, stem: str, models=("table2", "sionna")):
+    """The options every evidence table script shares (an
+    :class:`argparse.ArgumentParser`): ``--scenes``, ``--truths``,
+    ``--iterations``, ``--models``, ``--cache``, ``--out``, ``--stem``,
+    ``--table-only``; a script adds its own."""
+    import argparse
+
+    from ..benchmark_scenes import SCENES
+    from .evidence import DEFAULT_CACHE
+    from .truths import TRUTHS
+
+    p = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--scenes", default=",".join(SCENES))
+    p.add_argument("--truths", default=",".join(TRUTHS))
+    p.add_argument("--iterations", type=int, default=6)
+    p.add_argument("--models", default=",".join(models),
+                   help="fitted models: 'sionna' and mmIR variants of "
+                        "sionna_mmir.compare.evidence.VARIANTS (default %(default)s)")
+    p.add_argument("--cache", default=DEFAULT_CACHE)
+    p.add_argument("--out", default=out_dir)
+    p.add_argument("--stem", default=stem)
+    p.add_argument("--table-only", action="store_true",
+                   help="write the table from the cached cells, run nothing")
+    return p
