@@ -62,6 +62,31 @@ def test_02b_follow_up_tasks_run_after_the_result_that_calls_for_them():
         assert sorted(seen) == list(range(6))
 
 
+def test_02c_follow_ups_start_before_the_tasks_not_yet_started():
+    """At most one task per worker is in flight; a follow-up goes to the
+    front of the queue (in the executor's own queue it would wait behind
+    every given task, at the end of a ranking round).  An in-process
+    executor records the order in which tasks are started."""
+    import operator
+    from concurrent.futures import Future
+
+    class _Recording:
+        def __init__(self):
+            self.started = []
+
+        def submit(self, call, fn, path, task):
+            self.started.append(task[0])
+            fut = Future()
+            fut.set_result(fn(0, *task))
+            return fut
+
+    ex = _Recording()
+    out = FitPool(2)._run_queue(ex, operator.add, None, [(0,), (1,), (2,), (3,)], None,
+                                lambda i, r: [(10,), (11,)] if r == 0 else [])
+    assert out == [0, 1, 2, 3, 10, 11]
+    assert ex.started == [0, 1, 10, 11, 2, 3]
+
+
 class _Eff:
     """A toy effect: only its identity matters."""
 

@@ -340,10 +340,11 @@ def penalty_per_param(penalty, n_samples: float) -> float:
     return float(penalty)
 
 
-def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) -> dict:
-    """Worker task: candidate ``eff`` added to group ``g``'s fold ``k`` base,
-    fitted on its training cells, and what the ranking needs from its
-    held-out cells."""
+def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool,
+                    i: int = 0) -> dict:
+    """Worker task: candidate ``eff`` (number ``i`` of group ``g``) added to
+    the group's fold ``k`` base, fitted on its training cells, and what the
+    ranking needs from its held-out cells (``"key"``: ``(g, k, i)``)."""
     t0 = time.perf_counter()
     train, base = shared[g][k]
     cand = base.copy()
@@ -353,7 +354,7 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool) 
     else:
         _fit_candidate(cand, eff, train, maxiter)
     last = cand.components[-1]
-    out = {"nll": cand.nll_profiled(~train, deviation=deviation),
+    out = {"key": (g, k, i), "nll": cand.nll_profiled(~train, deviation=deviation),
            "n_params": int(last.n_params), "dev": deviation,
            "split": not deviation and cand.split_likelihood(),
            "floor": float(last.effect.fitted_gain_floor(cand, last.values))}
@@ -405,7 +406,7 @@ def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SER
             base.nuisance.values = values
             per.append((train, base, scores, float((~train).sum()) * m.ctx.shape[-1]))
         bases.append(per)
-    tasks, keys, left, racing = [], [], {}, set()
+    tasks, left, racing = [], {}, set()
     for g in reversed(range(len(groups))):
         m, cands, folds = groups[g]
         first = 1 if race and _races(m, len(folds)) else len(folds)
@@ -414,29 +415,24 @@ def rank_groups(groups, penalty=BIC, maxiter: int = 150, progress=None, pool=SER
             if first < len(folds):
                 racing.add((g, i))
             dev = eff.kind == "variance" and m.ctx.shape[3] > 1
-            tasks += [(g, k, eff, maxiter, dev) for k in range(first)]
-            keys += [(g, i)] * first
+            tasks += [(g, k, eff, maxiter, dev, i) for k in range(first)]
 
-    def follow(t, fit):
-        (g, i), (_, k, eff, _, dev) = keys[t], tasks[t]
-        if (g, i) not in racing or _fold_gain(bases[g][0], fit) <= 0:
-            return []
-        racing.discard((g, i))
-        more = [(g, j, eff, maxiter, dev) for j in range(1, len(groups[g][2]))]
-        tasks.extend(more)
-        keys.extend([(g, i)] * len(more))
-        left[(g, i)] += len(more)
+    def follow(_, fit):
+        """Count ``fit`` as done; its other folds when it raced and won the first."""
+        g, k, i = fit["key"]
+        more = []
+        if k == 0 and (g, i) in racing and _fold_gain(bases[g][0], fit) > 0:
+            more = [(g, j, groups[g][1][i], maxiter, fit["dev"], i)
+                    for j in range(1, len(groups[g][2]))]
+            left[(g, i)] += len(more)
+        left[(g, i)] -= 1
+        if left[(g, i)] == 0 and progress is not None:
+            progress(groups[g][1][i].name)
         return more
 
-    def done(t):
-        key = keys[t]
-        left[key] -= 1
-        if left[key] == 0 and progress is not None:
-            progress(groups[key[0]][1][key[1]].name)
-
     shared = [[(b[0], b[1]) for b in per] for per in bases]
-    fits = pool.map(_candidate_task, shared, list(tasks), done=done, follow=follow)
-    by_key = {(keys[t], tasks[t][1]): fit for t, fit in enumerate(fits)}  # ((group, cand), fold)
+    fits = pool.map(_candidate_task, shared, tasks, follow=follow)
+    by_key = {((f["key"][0], f["key"][2]), f["key"][1]): f for f in fits}  # ((group, cand), fold)
     return [_scores(g, cands, bases[g], by_key, penalty)
             for g, (_, cands, _) in enumerate(groups)]
 

@@ -162,34 +162,52 @@ class FitPool:
         as task ``i`` finishes (in any order).  ``follow(i, result)``, if
         given, returns further tasks that task ``i``'s result calls for; they
         are appended to the list (their results follow in the order they
-        were appended) and start as soon as a worker is free."""
+        were appended) and start before the tasks not yet started.  After a
+        worker died every task runs again here, so ``follow`` must not
+        count on being called once per result (tell results apart by what
+        they hold, not by their position)."""
         tasks = [tuple(t) for t in tasks]
         if self.workers <= 1 or (len(tasks) <= 1 and follow is None):
             return _serial(fn, shared, tasks, done, follow)
-        from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 
         given = len(tasks)
         try:
             with self._on_workers(shared) as (ex, path):
-                futures = {ex.submit(_call, fn, path, t): i for i, t in enumerate(tasks)}
-                results, pending = {}, set(futures)
-                while pending:
-                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-                    for fut in finished:
-                        i = futures[fut]
-                        results[i] = fut.result()
-                        for t in (follow(i, results[i]) if follow is not None else ()):
-                            tasks.append(tuple(t))
-                            new = ex.submit(_call, fn, path, tasks[-1])
-                            futures[new] = len(tasks) - 1
-                            pending.add(new)
-                        if done is not None:
-                            done(i)
-                return [results[i] for i in range(len(tasks))]
+                return self._run_queue(ex, fn, path, tasks, done, follow)
         except BrokenProcessPool:
             self._died()
             return _serial(fn, shared, tasks[:given], done, follow)
+
+    def _run_queue(self, ex, fn, path, tasks, done, follow) -> list:
+        """:meth:`map` on the executor ``ex``: at most one task per worker in
+        flight, the next taken from the front of a queue where follow-ups go
+        first (a task queued in the executor could not be overtaken: a
+        follow-up would wait behind every task given, at the end of the
+        round)."""
+        from collections import deque
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        queue, futures, results = deque(range(len(tasks))), {}, {}
+
+        def start():
+            while queue and len(futures) < self.workers:
+                i = queue.popleft()
+                futures[ex.submit(_call, fn, path, tasks[i])] = i
+
+        start()
+        while futures:
+            finished, _ = wait(futures, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                i = futures.pop(fut)
+                results[i] = fut.result()
+                new = [tuple(t) for t in (follow(i, results[i]) if follow is not None else ())]
+                tasks.extend(new)
+                queue.extendleft(reversed(range(len(tasks) - len(new), len(tasks))))
+                if done is not None:
+                    done(i)
+            start()
+        return [results[i] for i in range(len(tasks))]
 
     def first(self, fn, shared, tasks, accept):
         """``(i, fn(shared, *tasks[i]))`` for the first ``i`` in task order whose
