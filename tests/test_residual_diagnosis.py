@@ -469,6 +469,46 @@ def test_14d_candidates_on_every_chirp_race_on_their_first_fold():
     assert len(gain.fold_gains) == 3
 
 
+def test_14e_a_noise_shaper_must_gain_more_than_the_noise_models():
+    """When the best mean candidate shapes the receiver noise (an IF filter),
+    the noise models are scored in the same round and an acceptable one that
+    gains more is chosen instead; one that gains less, or is not acceptable,
+    leaves the filter chosen (truth: the rule, on given scores)."""
+    from sionna_mmir.effects.library.if_filter import IFFilter
+    from sionna_mmir.effects.library.phase_noise import PhaseNoise
+    from sionna_mmir.residual.ranking import CandidateScore, _noise_before_shaper
+
+    def score(name, gain):
+        return CandidateScore(name=name, n_params=1, gain=gain, gain_per_sample=gain,
+                              score=gain, fold_gains=[gain])
+
+    class _Tiers:
+        def __init__(self, scores):
+            self.scores, self.asked = scores, []
+
+        def rank(self, candidates, *args):
+            self.asked += [c.name for c in candidates]
+            return [self.scores[c.name] for c in candidates]
+
+    pool = [IFFilter(), NoiseFloor(), PhaseNoise(), ChannelGain()]
+    shaper = score("if_filter", 2709.0)
+    for floor_gain, fine, chosen in ((198_000.0, True, "noise_floor"),
+                                     (1_000.0, True, "if_filter"),
+                                     (198_000.0, False, "if_filter")):
+        tiers = _Tiers({"noise_floor": score("noise_floor", floor_gain),
+                        "phase_noise": score("phase_noise", -5.0)})
+        ok = (lambda c: c.score > 0 and (fine or c.name != "noise_floor"))
+        ranking, best = _noise_before_shaper(tiers, pool, [shaper], shaper, ok, {}, ())
+        assert sorted(tiers.asked) == ["noise_floor", "phase_noise"]
+        assert best.name == chosen
+        assert {c.name for c in ranking} == {"if_filter", "noise_floor", "phase_noise"}
+    # screened noise models are not scored
+    tiers = _Tiers({})
+    _, best = _noise_before_shaper(tiers, pool, [shaper], shaper, lambda c: True,
+                                   {"noise_floor": "white", "phase_noise": "static"}, ())
+    assert best is shaper and tiers.asked == []
+
+
 def test_15_a_noise_model_is_scored_on_the_chirp_to_chirp_scatter():
     """Phase noise (a stationary variance model) is scored on the residual's
     chirp-to-chirp deviation: a static misfit of the scene (a target 25 %
