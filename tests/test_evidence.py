@@ -311,3 +311,18 @@ def test_11_model_truth_columns_and_markdown(tmp_path, capsys):
                                              "independent/table2/2", "independent/sionna/2"]
     path = write_markdown(["# t", "| a |"], str(tmp_path / "o"), "x")
     assert open(path).read() == "# t\n| a |\n" and "| a |" in capsys.readouterr().out
+
+
+def test_12_table_scripts_refuse_an_unknown_model(capsys):
+    """``--models`` of the evidence table scripts takes ``sionna`` and the
+    variant names; anything else is a usage error (exit 2, the names listed)."""
+    from sionna_mmir.compare.evidence_report import table_parser
+
+    p = table_parser("doc", "/tmp", "stem")
+    assert p.parse_args(["--models", "table2_smooth,sionna"]).models == "table2_smooth,sionna"
+    for bad in ("table2,bogus", ""):
+        with pytest.raises(SystemExit) as exc:
+            p.parse_args(["--models", bad])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert "error: argument --models: unknown model" in err and "table2_smooth" in err

@@ -194,7 +194,7 @@ def table_parser(doc: str, out_dir: str, stem: str, models=("table2", "sionna"))
     p.add_argument("--scenes", default=",".join(SCENES))
     p.add_argument("--truths", default=",".join(TRUTHS))
     p.add_argument("--iterations", type=int, default=6)
-    p.add_argument("--models", default=",".join(models),
+    p.add_argument("--models", default=",".join(models), type=_model_list,
                    help="fitted models: 'sionna' and mmIR variants of "
                         "sionna_mmir.compare.evidence.VARIANTS (default %(default)s)")
     p.add_argument("--cache", default=DEFAULT_CACHE)
@@ -203,3 +203,18 @@ def table_parser(doc: str, out_dir: str, stem: str, models=("table2", "sionna"))
     p.add_argument("--table-only", action="store_true",
                    help="write the table from the cached cells, run nothing")
     return p
+
+
+def _model_list(text: str) -> str:
+    """``--models``: comma-separated ``sionna`` and :data:`~.evidence.VARIANTS`
+    names (returned unchanged; an unknown name is a usage error)."""
+    import argparse
+
+    from .evidence import VARIANTS
+
+    unknown = [m for m in text.split(",") if m != "sionna" and m not in VARIANTS]
+    if unknown or not text:
+        raise argparse.ArgumentTypeError(
+            f"unknown model {', '.join(unknown) or repr(text)} (choose from sionna, "
+            f"{', '.join(VARIANTS)})")
+    return text
