@@ -114,6 +114,8 @@ class _Toy:
     def remove(self, comp):
         self.components.remove(comp)
 
+    restore = EffectModel.restore
+
     def numbers(self):
         return [int(c.values["v"]) for c in self.components]
 

@@ -120,31 +120,18 @@ def fit_joint(model, cells=None, maxiter: int = 300) -> dict:
     best, cycles = model.nll(cells), 0
     while cycles < MAX_CYCLES:
         cycles += 1
-        kept = _values(model)
+        kept = model.snapshot()
         _fit_static(model, static, cells, maxiter)
         model.fit(trainable=varying, cells=cells, maxiter=maxiter)
         nll = model.nll(cells)
         if nll > best:                      # a cycle that made it worse is undone
-            _restore(model, kept)
+            model.restore(kept)
             break
         if not best - nll > BLOCK_TOL:
             best = nll
             break
         best = nll
     return {"nll": best, "cycles": cycles}
-
-
-def _values(model) -> tuple:
-    """Copies of ``model``'s nuisance and component values."""
-    copy = lambda vals: {k: np.array(v, copy=True) for k, v in vals.items()}   # noqa: E731
-    return copy(model.nuisance.values), [copy(c.values) for c in model.components]
-
-
-def _restore(model, kept) -> None:
-    """Give ``model`` the values :func:`_values` took."""
-    model.nuisance.values = kept[0]
-    for c, v in zip(model.components, kept[1]):
-        c.values = v
 
 
 def _fit_static(model, static, cells, maxiter: int) -> None:

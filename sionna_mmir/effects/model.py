@@ -321,11 +321,14 @@ class EffectModel:
     #: ``(Y_numpy, S)``: the data's deviation power of this (full) model,
     #: computed once for that data array (copies share it)
     _deviation_power = None
+    #: ``(noise_bins array, device tensor [1, 1, 1, 1, N])`` (:meth:`_keep`)
+    _keep_t = None
 
     def __getstate__(self):
         """Pickle without the Dr.Jit tensors (rebuilt from ``Y_numpy``, ``b``
         and the context's basis): half the bytes for worker processes."""
-        return {k: v for k, v in self.__dict__.items() if k not in self._TENSORS}
+        return {k: v for k, v in self.__dict__.items()
+                if k not in self._TENSORS and k != "_keep_t"}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
@@ -371,9 +374,7 @@ class EffectModel:
             self.fit(trainable=trainable, cells=cells, maxiter=maxiter)
             return
         dev.fit(trainable=trainable, cells=cells, maxiter=maxiter)
-        self.nuisance.values = dev.nuisance.values
-        for c, d in zip(self.components, dev.components):
-            c.values = d.values
+        self.restore(dev.snapshot())
 
     def copy(self) -> "EffectModel":
         """Shallow copy with independent component values (tensors are shared)."""
@@ -382,6 +383,21 @@ class EffectModel:
         new.nuisance = self.nuisance.copy()
         new.components = [c.copy() for c in self.components]
         return new
+
+    def snapshot(self) -> tuple:
+        """``(nuisance values, [component values])``, copied: what
+        :meth:`restore` gives back to this model or to one with the same
+        components (a copy, its chirp average)."""
+        def copied(values):
+            return {k: np.array(v, copy=True) for k, v in values.items()}
+        return copied(self.nuisance.values), [copied(c.values) for c in self.components]
+
+    def restore(self, snapshot) -> None:
+        """Take the values of a :meth:`snapshot` (component objects kept)."""
+        nuisance, values = snapshot
+        self.nuisance.values = nuisance
+        for c, v in zip(self.components, values):
+            c.values = v
 
     # ------------------------------------------------------------- forward
     def _components(self, tens: dict, order):
@@ -713,6 +729,15 @@ class EffectModel:
         return (self.ctx.shape[3] > 1 or self._deviation is not None) \
             and bool(self._noise_shapers())
 
+    def _keep(self):
+        """:meth:`noise_bins` as a 0/1 device tensor ``[1, 1, 1, 1, N]``, made once
+        per bins array (the split losses read it at every evaluation)."""
+        bins = self.noise_bins()
+        if self._keep_t is None or self._keep_t[0] is not bins:
+            N = self.ctx.shape[4]
+            self._keep_t = (bins, ops.tensor(bins.astype(np.float64).reshape(1, 1, 1, 1, N)))
+        return self._keep_t[1]
+
     def noise_bins(self) -> np.ndarray:
         """``[N]`` bool: the range bins whose chirp-to-chirp scatter in the
         data is receiver noise alone (:func:`~.library._sensor_common.noise_bins`;
@@ -760,7 +785,7 @@ class EffectModel:
         e_m = dr.sum(ops.abs2(Rm) * w, axis=None) / n_m
         mean_term = n_m * (dr.log(e_m + 1e-30) + 1.0)
         D2 = ops.abs2((R[0] - Rm[0], R[1] - Rm[1]))
-        keep = ops.tensor(self.noise_bins().astype(np.float64).reshape(1, 1, 1, 1, N))
+        keep = self._keep()
         dev_term = dr.sum((D2 / v + ((C - 1) / C) * dr.log(v)) * mask * keep, axis=None)
         return (mean_term + dev_term) / n
 
@@ -775,7 +800,7 @@ class EffectModel:
         R = (self.Y[0] - X[0], self.Y[1] - X[1])
         e_m = dr.sum(ops.abs2(R) * mask, axis=None) / n
         mean_term = n * (dr.log(e_m + 1e-30) + 1.0)
-        keep = ops.tensor(self.noise_bins().astype(np.float64).reshape(1, 1, 1, 1, N))
+        keep = self._keep()
         dev_term = dr.sum((S / v + (C - 1) * dr.log(v)) * mask * keep, axis=None)
         return (mean_term + dev_term) / (n * C)
 
@@ -873,10 +898,7 @@ class EffectModel:
         if work is not None:                   # the same objective at 1 / C of the work
             out = work.fit(trainable, None if cells is None else np.asarray(cells)[..., :1],
                            maxiter, nuisance)
-            self.nuisance.values = {k: np.array(v, copy=True)
-                                    for k, v in work.nuisance.values.items()}
-            for c, w in zip(self.components, work.components):
-                c.values = {k: np.array(v, copy=True) for k, v in w.values.items()}
+            self.restore(work.snapshot())
             return out
         idx = list(range(len(self.components))) if trainable is None else list(trainable)
         keys = []

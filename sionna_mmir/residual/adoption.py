@@ -26,13 +26,7 @@ from .workers import SERIAL
 
 def _trial_values(trial: EffectModel) -> tuple:
     """What a trial model's fit changed: its NLL, nuisance and component values."""
-    return (trial.nll(), trial.nuisance.values, [c.values for c in trial.components])
-
-
-def _take_values(model: EffectModel, nuisance, values) -> None:
-    model.nuisance.values = nuisance
-    for c, v in zip(model.components, values):
-        c.values = v
+    return (trial.nll(),) + trial.snapshot()
 
 
 def _restart_task(model, i: int, maxiter: int) -> tuple:
@@ -71,7 +65,7 @@ def _keep(model: EffectModel, kind: str, i: int, result) -> None:
     if kind == "backfit":
         trial.remove(trial.components[i])
         trial.components.append(_Component(effect=result[3], specs=result[4], values={}))
-    _take_values(trial, result[1], result[2])
+    trial.restore(result[1:3])
     model.components, model.nuisance = trial.components, trial.nuisance
 
 
