@@ -407,6 +407,8 @@ def test_13_phase_noise_gradient():
     ctx, clean, meas, _ = _phase_noise_capture(2, -35.0, 2.0, 1e-3, 10)
     m = EffectModel(ctx, meas, clean)
     comp = m.add(PhaseNoise())
+    # the common frequency error has no part in the Dr.Jit likelihood (test 15b)
+    del comp.specs["common_db"]
     comp.values = {"L0": np.array([-33.0]), "beta": np.array([1.6])}
     _check_gradient(m)
 
@@ -455,6 +457,65 @@ def test_15_phase_noise_recovered():
     m0 = EffectModel(ctx, meas, clean)
     m0.fit()
     assert m.nll() < m0.nll() - 1.0
+
+
+def _common_error_capture(e_rms, sigma, seed, num_chirps=8, droop=0.0):
+    """Three point targets with one real LO frequency error ``e[t, c, k]`` [Hz]
+    per transmit slot and sample, shared by every Rx and applied exactly to
+    each path (``exp(j 2 pi tau_p e)``, not the first-order form the effect
+    uses), or a real amplitude droop ``1 + droop N(0, 1)`` shared the same way;
+    plus white noise.  Returns ``(ctx, clean [1, T, R, C, N], measured)``."""
+    radar = _radar(num_chirps)
+    ctx = EffectContext(radar)
+    tau = _delays(radar)                                                  # [T, R, P]
+    rng = np.random.default_rng(seed)
+    T, R, C, N = radar.num_tx, radar.num_rx, num_chirps, radar.num_samples
+    e = e_rms * rng.normal(size=(T, 1, C, N, 1))
+    amp = 1.0 + droop * rng.normal(size=(T, 1, C, 1))
+    tk = radar.adc_start_time + np.arange(N) / radar.sample_rate
+    f = radar.start_frequency + radar.slope * tk
+    ph = np.exp(2j * np.pi * f[None, None, None, :, None] * tau[:, :, None, None, :])
+    clean = np.sum(AMPS * ph, axis=-1)                                    # [T, R, C, N]
+    moved = np.sum(AMPS * ph * np.exp(2j * np.pi * tau[:, :, None, None, :] * e), axis=-1)
+    meas = amp * moved + _noise(moved.shape, sigma, seed + 1)
+    return ctx, np.broadcast_to(clean, meas.shape)[None].copy(), meas[None]
+
+
+def test_15b_phase_noise_common_error_predicted_from_the_other_rx():
+    """The LO's frequency error shared by the Rx of a slot: its level is
+    recovered by leave-one-Rx-out prediction, the prediction lowers the
+    held-out NLL of the chirp-to-chirp scatter, and neither white noise nor
+    a shared amplitude droop (at right angles to it) is taken for it.
+    Truth: the exact per-path phase ``2 pi tau e`` with a known ``e``."""
+    from sionna_mmir.effects.library.phase_noise import COMMON_BOUNDS
+    from sionna_mmir.residual.ranking import cv_folds
+    from sionna_mmir.residual.screening import coherent_excess
+
+    e_rms, sigma = 3e5, 0.02
+    found = {}
+    for case, (e, droop) in {"common": (e_rms, 0.0), "white": (0.0, 0.0),
+                             "droop": (0.0, 0.05)}.items():
+        ctx, clean, meas = _common_error_capture(e, sigma, 21, droop=droop)
+        m = EffectModel(ctx, meas, clean)
+        m.fit()
+        train = cv_folds(ctx.shape[:4], 3, seed=0)[0]
+        cand = m.copy()
+        comp = cand.add(PhaseNoise(), cells=train)
+        cand.fit_to_scatter([len(cand.components) - 1], cells=train)
+        n_test = float((~train).sum()) * ctx.shape[-1]
+        skirt = cand.copy()                              # the same model, no common error
+        skirt.components[-1].values["common_db"] = np.array([COMMON_BOUNDS[0]])
+        gain = (skirt.nll_profiled(~train, deviation=True)
+                - cand.nll_profiled(~train, deviation=True)) * n_test
+        found[case] = (float(comp.values["common_db"][0]), gain,
+                       coherent_excess(meas / m.scale, ctx))
+    db, gain, excess = found["common"]
+    assert db == pytest.approx(20 * np.log10(e_rms), abs=1.5)          # dB re 1 Hz^2
+    assert gain > 500 and excess > 3.0
+    for case in ("white", "droop"):
+        db, gain, excess = found[case]
+        assert db < 20 * np.log10(e_rms) - 15 or db == COMMON_BOUNDS[0], case
+        assert gain < 5.0 and excess < 1.5, case
 
 
 # =============================================================== IF filter

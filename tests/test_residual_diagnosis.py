@@ -509,6 +509,63 @@ def test_14e_a_noise_shaper_must_gain_more_than_the_noise_models():
     assert best is shaper and tiers.asked == []
 
 
+def test_14f_an_effect_on_every_path_must_follow_the_signal_across_range():
+    """``outside_share`` on hand-made bins, then on data: a per-channel gain on
+    every path removes held-out residual at every object, one shared by the
+    two strongest objects only (what per-object patterns are) makes the third
+    worse and is not acceptable.  Truth: the planted gains."""
+    from sionna_mmir.residual.ranking import (OUTSIDE_TOLERANCE, CandidateScore, _rank_round,
+                                              outside_share, rank_candidates)
+
+    N = 64
+    power = np.zeros(N)
+    power[[10, 30, 50]] = 8.0, 7.0, 3.0                # the first two hold >= half: inside
+    base = np.full(N, 1.0)
+    cand = base - 0.01 * power                         # in proportion to the power
+    assert outside_share(base, cand, power) == pytest.approx(0.03 / 0.15)
+    cand = base.copy()
+    cand[[10, 30]] -= 0.1
+    cand[50] += 0.05                                   # the third object made worse
+    assert outside_share(base, cand, power) == pytest.approx(-0.25)
+    cand[[10, 30]] = base[[10, 30]]                    # nothing removed at the objects
+    assert outside_share(base, cand, power) == -np.inf
+    assert outside_share(base, base, power) == 0.0
+
+    class Tiers:
+        model = type("M", (), {"ctx": type("X", (), {"shape": (1, 3, 4, 1, 64)})()})()
+
+        def rank(self, group, penalty, maxiter, progress):
+            return [CandidateScore(e.name, 1, 1000.0, 0.1, 999.0, [1000.0],
+                                   energy_change_db=-1.0, outside_share=-0.3)
+                    for e in group if e.name == "channel_gain"]
+
+        def on_one_scale(self, ranking, best, *args):
+            return ranking, best
+
+    pool = [ChannelGain()]
+    pool[0].gain_floor = lambda ctx: 0.0
+    assert _rank_round(Tiers(), pool, 1.0, 10, None, 0.0, set())[1] is None
+
+    radar = RadarConfig.awr1843(num_chirps=1, num_samples=64)
+    ctx = EffectContext(radar)
+    amps, ranges = np.array([1.0, 0.95j, 0.9]), np.array([1.8, 2.7, 3.7])
+    paths = [synthesize_adc(radar, amps[i:i + 1], 2 * ranges[i:i + 1] / C)[None]
+             for i in range(3)]
+    clean = sum(paths)
+    g = np.random.default_rng(9)
+    gains = (1 + 0.2 * (g.normal(size=(3, 1)) + 1j * g.normal(size=(1, 4))))[None, :, :, None, None]
+    shares = {}
+    for case, y in {"every path": clean * gains,
+                    "two objects": (paths[0] + paths[1]) * gains + paths[2]}.items():
+        m = EffectModel(ctx, y + _noise(clean.shape, 0.01, 10), clean)
+        m.fit(trainable=[])
+        (c,) = rank_candidates(m, [ChannelGain()], cv_folds(ctx.shape[:4], 3))
+        assert c.gain > 0, (case, c)
+        shares[case] = c.outside_share
+    assert shares["every path"] > 0.2, shares
+    assert shares["two objects"] < -OUTSIDE_TOLERANCE, shares
+
+
 def test_15_a_noise_model_is_scored_on_the_chirp_to_chirp_scatter():
     """Phase noise (a stationary variance model) is scored on the residual's
     chirp-to-chirp deviation: a static misfit of the scene (a target 25 %

@@ -118,6 +118,11 @@ class Effect:
     #: a chirp-varying additive effect can be held fixed on chirp-averaged data
     #: (:class:`~sionna_mmir.effects.frozen.FrozenPart`)
     additive = False
+    #: acts on every path of the scene alike (a per-channel gain, IQ imbalance,
+    #: a delay or frequency offset, the chirp's non-linearity): the residual it
+    #: explains follows the signal's power across range, which the residual
+    #: loop checks (:func:`~sionna_mmir.residual.ranking.outside_share`)
+    every_path = False
     #: a property of the radar unit (same on every capture of it), not of the
     #: scene or the moment: calibrated once into a sensor profile
     #: (:mod:`sionna_mmir.effects.profile`), not cross-validated inside one frame

@@ -345,20 +345,25 @@ class EffectModel:
         return [ops.tensor(np.broadcast_to(B[None], self.ctx.shape) * k)
                 for B in self.ctx.basis.adc]
 
-    def on_chirp_deviation(self) -> "EffectModel":
+    def on_chirp_deviation(self, cells=None) -> "EffectModel":
         """A copy measuring the current mean model plus the residual's
         deviation from its chirp mean, ``x + (r - mean_c r) sqrt(C / (C - 1))``
         (:func:`~.library._sensor_common.chirp_deviation`): the chirp-to-chirp
         scatter a stationary noise model must predict (:meth:`nll_profiled`
         with ``deviation``), without the chirp-mean misfit that is the mean
-        model's to explain.  ``self`` with one chirp loop."""
+        model's to explain, and without what :meth:`predict_deviation`
+        predicts from the other cells among ``cells`` (None: all).  ``self``
+        with one chirp loop."""
         from .library._sensor_common import chirp_deviation
 
         if self.ctx.shape[3] < 2:
             return self
-        x = self.mean_variance_numpy()[0]
+        x, v = self.mean_variance_numpy()
+        d = chirp_deviation(self.y - x)
+        if self._deviation_predictors():
+            d = d - self.predict_deviation(x, d, v, cells)
         new = self.copy()
-        new.y = x + chirp_deviation(self.y - x)
+        new.y = x + d
         new.Y_numpy = np.fft.fft(new.y, axis=-1, norm="ortho")
         new.Y = ops.tensor(new.Y_numpy)
         new.y_t = ops.tensor(new.y)
@@ -369,12 +374,55 @@ class EffectModel:
         :meth:`on_chirp_deviation` and keep the values (a noise model fitted
         where it is scored: to the whole residual it would widen its variance
         at the scene misfit and overpredict the scatter)."""
-        dev = self.on_chirp_deviation()
+        self._fit_deviation_predictors(trainable, cells)
+        dev = self.on_chirp_deviation(cells)
         if dev is self:
             self.fit(trainable=trainable, cells=cells, maxiter=maxiter)
             return
         dev.fit(trainable=trainable, cells=cells, maxiter=maxiter)
         self.restore(dev.snapshot())
+
+    def _deviation_predictors(self) -> list:
+        """Components that predict a cell's chirp deviation from the other cells."""
+        return [c for c in self.components if getattr(c.effect, "predicts_deviation", False)]
+
+    def predict_deviation(self, x, d, v, cells=None) -> np.ndarray:
+        """What the components that predict deviations
+        (``effect.predicts_deviation``: the LO's common frequency error,
+        :class:`~.library.phase_noise.PhaseNoise`) explain of the chirp
+        deviation ``d`` (time domain ``[F, T, R, C, N]``) of each cell from the
+        other cells among ``cells`` (boolean ``[F, T, R, C]``; None: all);
+        ``x`` and ``v`` the current mean (time domain) and per-bin variance."""
+        out = np.zeros_like(d)
+        for c in self._deviation_predictors():
+            out = out + c.effect.deviation_prediction(x, d, c.values, self.ctx, v, cells)
+        return out
+
+    def deviation_prediction_numpy(self) -> np.ndarray | None:
+        """:meth:`predict_deviation` of the current residual's chirp deviation
+        from all cells; None with one chirp loop or no such component."""
+        from .library._sensor_common import chirp_deviation
+
+        if self.ctx.shape[3] < 2 or not self._deviation_predictors():
+            return None
+        x, v = self.mean_variance_numpy()
+        return self.predict_deviation(x, chirp_deviation(self.y - x), v)
+
+    def _fit_deviation_predictors(self, trainable, cells=None) -> None:
+        """Fit what the ``trainable`` components that predict deviations
+        predict with (``effect.fit_deviation``) on the residual's chirp
+        deviation over ``cells``: outside the Dr.Jit likelihood, which holds
+        their variance only."""
+        from .library._sensor_common import chirp_deviation
+
+        picked = [self.components[i] for i in (trainable or [])
+                  if getattr(self.components[i].effect, "predicts_deviation", False)]
+        if not picked or self.ctx.shape[3] < 2:
+            return
+        x, v = self.mean_variance_numpy()
+        d = chirp_deviation(self.y - x)
+        for c in picked:
+            c.values = c.effect.fit_deviation(x, d, c.values, self.ctx, v, cells)
 
     def copy(self) -> "EffectModel":
         """Shallow copy with independent component values (tensors are shared)."""
@@ -602,6 +650,16 @@ class EffectModel:
         r = self.y - self.mean_variance_numpy()[0]
         return float(np.sum(np.abs(r if cells is None else r[np.asarray(cells, bool)]) ** 2))
 
+    def energy_by_bin(self, cells=None) -> tuple:
+        """``(residual, model)``: ``sum |Y - X|^2`` and ``sum |X|^2`` per range
+        bin (unitary DFT) over ``cells`` (None: all), ``[N]`` each, normalised
+        units: where in range the mean model misses and where its power is."""
+        x = self.mean_variance_numpy()[0]
+        keep = (slice(None),) * 4 if cells is None else np.asarray(cells, bool)
+        X = np.fft.fft(x[keep], axis=-1, norm="ortho")
+        return (np.sum(np.abs(self.Y_numpy[keep] - X) ** 2, axis=tuple(range(X.ndim - 1))),
+                np.sum(np.abs(X) ** 2, axis=tuple(range(X.ndim - 1))))
+
     # ---------------------------------------------------------------- loss
     def mask_tensor(self, cells=None):
         """0/1 weights ``[F, T, R, C, N]`` from a boolean ``[F, T, R, C]`` cell mask (None: all)."""
@@ -657,6 +715,10 @@ class EffectModel:
         corrected, which the profiled floors absorb).  The cells must hold
         every chirp loop of their channels.
 
+        With ``deviation``, what the components that predict a cell's
+        deviation from the other cells (:meth:`predict_deviation`: the LO's
+        common frequency error) explain is taken out first.
+
         ``split`` (None: :meth:`split_likelihood`): without ``deviation``, the
         NLL of :meth:`_split_loss`, the chirp mean with its own profiled white
         floor (each cell carries ``1 / C`` of its channel's) and the deviation
@@ -683,6 +745,9 @@ class EffectModel:
                      + 1j * np.median(r.imag, axis=3, keepdims=True))
         elif deviation and C > 1:
             r = (r - r.mean(axis=3, keepdims=True)) * np.sqrt(C / (C - 1))
+        if deviation and C > 1 and self._deviation_predictors():
+            d = np.fft.ifft(r, axis=-1, norm="ortho")
+            r = np.fft.fft(d - self.predict_deviation(x, d, v), axis=-1, norm="ortho")
         r2 = np.abs(r[cells]) ** 2
         s = np.broadcast_to(self.white_shape_numpy(), v.shape)
         extra = (v - float(np.exp(self.nuisance.values["log_noise"][0])) * s)[cells]

@@ -150,7 +150,7 @@ class DiagnosisRun:
         self.seed, self.maxiter, self.groups, self.progress = seed, maxiter, groups, progress
         self.fits = FitPool(workers)
         self.fold_groups = _folds(model.ctx.shape[:4], folds, seed, groups)[1]
-        self.screened = screen(model.y, model.scale, candidates)
+        self.screened = screen(model.y, model.scale, candidates, model.ctx)
         self.adoptions, self.ranking, self.stop_reason = [], [], None
         #: adoptions undone because the joint refit made the mean model worse
         self.vetoes = []

@@ -46,6 +46,10 @@ class CandidateScore:
     #: 0 and inf for mean effects and short frames)
     chirp_memory: float = 0.0
     memory_limit: float = float("inf")
+    #: held-out residual energy a mean candidate removes outside the range
+    #: bins of the strongest objects, as a share of what it removes at them
+    #: (:func:`outside_share`; 0 for variance effects)
+    outside_share: float = 0.0
     #: seconds its fold fits took (summed over folds, each timed where it ran)
     fit_s: float = 0.0
     #: least gain per sample its fits call for (the median over folds of
@@ -125,6 +129,7 @@ def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple
                                          deviation=_slot_deviation(model.ctx.shape[3] > 1))[1]
     if "energy" in needs:
         out["energy"] = base.residual_energy(test)
+        out["bins"], out["power"] = base.energy_by_bin(test)
     if "split" in needs:
         out["split"] = base.nll_profiled(test, split=True) * n_test
     return base.nuisance.values, out
@@ -340,6 +345,17 @@ def penalty_per_param(penalty, n_samples: float) -> float:
     return float(penalty)
 
 
+def _claimed(model, excess):
+    """The scatter a noise model claims per cell and bin: its variance over
+    the white floor ``excess`` plus the power of the deviation it predicts
+    from other cells (:meth:`~sionna_mmir.effects.model.EffectModel.deviation_prediction_numpy`),
+    which :func:`memory_stats` weighs the chirp memory by."""
+    pred = model.deviation_prediction_numpy()
+    if pred is None:
+        return excess
+    return excess + np.abs(np.fft.fft(pred, axis=-1, norm="ortho")) ** 2
+
+
 def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool,
                     i: int = 0) -> dict:
     """Worker task: candidate ``eff`` (number ``i`` of group ``g``) added to
@@ -363,9 +379,10 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool,
                                          deviation=_slot_deviation(deviation))[1]
         x, v = cand.mean_variance_numpy()
         white = float(np.exp(cand.nuisance.values["log_noise"][0]))
-        out["memory"] = memory_stats(cand.y - x, v - white, ~train)
+        out["memory"] = memory_stats(cand.y - x, _claimed(cand, v - white), ~train)
     else:
         out["energy"] = cand.residual_energy(~train)
+        out["bins"] = cand.energy_by_bin(~train)[0]
     out["s"] = time.perf_counter() - t0
     return out
 
@@ -478,7 +495,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
     out = []
     for i, eff in enumerate(candidates):
         gains, n_tot, cell_gains, energy, secs = [], 0.0, [], [0.0, 0.0], 0.0
-        floors, memory = [], []
+        floors, memory, bins = [], [], [0.0, 0.0, 0.0]
         for k, (train, _, base, n_test) in enumerate(bases):
             fit = fits.get(((g, i), k))
             if fit is None:                     # raced out after its first fold
@@ -492,6 +509,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
             else:
                 energy[0] += base["energy"]
                 energy[1] += fit["energy"]
+                bins = [bins[0] + base["bins"], bins[1] + fit["bins"], bins[2] + base["power"]]
             n_tot += n_test
         n_params = fits[((g, i), 0)]["n_params"]
         gain = float(np.sum(gains))
@@ -504,8 +522,52 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
                                   energy_change_db=(_db(energy[1] / energy[0])
                                                     if energy[0] > 0 else 0.0),
                                   **_memory_fields(memory),
+                                  outside_share=(outside_share(*bins)
+                                                 if eff.kind != "variance" else 0.0),
                                   fit_s=secs, gain_floor=float(np.median(floors))))
     return sorted(out, key=lambda c: c.score, reverse=True)
+
+
+#: share of the model's power held by the range bins of its strongest
+#: objects (each peak with its two neighbours) in :func:`outside_share`
+OBJECT_POWER_SHARE = 0.5
+
+
+def outside_share(base, cand, power) -> float:
+    """Held-out residual energy a candidate removes outside the range bins of
+    the model's strongest objects, over what it removes at them.
+
+    ``base``, ``cand``: the held-out residual energy per range bin ``[N]``
+    without and with the candidate, ``power`` the base model's.  The
+    strongest objects' bins are its largest peaks, each with the bins beside
+    it, taken in order until they hold :data:`OBJECT_POWER_SHARE` of the
+    power.  An effect on every path (a per-channel gain, IQ imbalance, a
+    delay) removes residual wherever there is signal, about in proportion
+    to its power; a per-channel effect that takes the misfit of the two
+    strongest objects (which per-object patterns explain as well) makes the
+    other bins worse.  0 where the arrays are missing or nothing is removed
+    at the objects and nothing lost elsewhere."""
+    base, cand, power = (np.asarray(a, np.float64) for a in (base, cand, power))
+    if base.ndim != 1 or not np.any(power > 0):
+        return 0.0
+    N = len(power)
+    inside = np.zeros(N, bool)
+    for k in np.argsort(-power):
+        if power[inside].sum() >= OBJECT_POWER_SHARE * power.sum():
+            break
+        inside[[(k - 1) % N, k, (k + 1) % N]] = True
+    removed_in = float(np.sum((base - cand)[inside]))
+    removed_out = float(np.sum((base - cand)[~inside]))
+    if removed_in <= 0:
+        return 0.0 if removed_out >= 0 else -np.inf
+    return removed_out / removed_in
+
+
+#: an effect on every path (``Effect.every_path``) is acceptable only while
+#: :func:`outside_share` is at least minus this: it may not make the bins
+#: outside the strongest objects worse by more than this share of what it
+#: explains at them
+OUTSIDE_TOLERANCE = 0.1
 
 
 class _Tiers:
@@ -670,6 +732,7 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
     kinds_of = {c.name: c.kind for c in pool}
     scene_side = {c.name: c.scene_side for c in pool}
     mean_only = {c.name for c in pool if _mean_only(c)}
+    every_path = {c.name for c in pool if getattr(c, "every_path", False)}
 
     def ok(c):
         variance = kinds_of.get(c.name) == "variance"
@@ -677,9 +740,10 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
             int(np.prod(tiers.model.ctx.shape[:4])) // tiers.model.ctx.shape[2])
             and c.chirp_memory <= c.memory_limit)
         predicts_mean = c.name not in mean_only or c.energy_change_db <= 0.0
+        follows_signal = c.name not in every_path or c.outside_share >= -OUTSIDE_TOLERANCE
         least = max(floor.get(c.name, min_gain), c.gain_floor)
         return (c.score > 0 and c.gain_per_sample >= least and stationary
-                and predicts_mean and c.name not in vetoed)
+                and predicts_mean and follows_signal and c.name not in vetoed)
 
     ranking = []
     for kinds in (("basis", "mean"), ("variance",)):

@@ -46,6 +46,7 @@ class ChannelGain(Effect):
     """Separable per-Tx x per-Rx complex gain (``2 (T + R)`` parameters)."""
 
     name = "channel_gain"
+    every_path = True
     kind = "mean"
     stage = 1
     per_unit = True

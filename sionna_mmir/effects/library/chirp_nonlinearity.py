@@ -83,6 +83,7 @@ class ChirpNonlinearity(Effect):
     """Ramp frequency error as a Legendre series (``len(degrees)`` parameters, MHz)."""
 
     name = "chirp_nonlinearity"
+    every_path = True
     kind = "mean"
     stage = 1
     per_unit = True

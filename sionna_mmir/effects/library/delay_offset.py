@@ -91,6 +91,7 @@ class DelayOffset(Effect):
     """Separable per-Tx + per-Rx extra delay (``T + R`` parameters, ps)."""
 
     name = "delay_offset"
+    every_path = True
     kind = "mean"
     stage = 1
     per_unit = True

@@ -49,6 +49,7 @@ class FrequencyOffset(Effect):
     """Per-receive-chip beat-frequency offset (``n_chips`` parameters, kHz)."""
 
     name = "frequency_offset"
+    every_path = True
     kind = "mean"
     stage = 1
     per_unit = True

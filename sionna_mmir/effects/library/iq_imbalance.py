@@ -64,6 +64,7 @@ class IQImbalance(Effect):
     """Per-Rx gain and phase error of the Q branch (``2 R`` parameters: %, deg)."""
 
     name = "iq_imbalance"
+    every_path = True
     kind = "mean"
     stage = 3
     per_unit = True
