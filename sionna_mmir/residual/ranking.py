@@ -7,7 +7,8 @@ training cells (:func:`rank_candidates`, on worker processes) and scored by
 its held-out likelihood gain, chirp-static candidates on the chirp average
 and the rest on every chirp (:class:`_Tiers`), and :func:`_rank_round`
 applies the acceptance rules (gain floors, stationarity of noise models,
-the mean guard, scene mismatch before sensor effects, parsimony).
+the mean guard, an effect on every path following the signal across range,
+scene mismatch before sensor effects, parsimony).
 """
 from __future__ import annotations
 

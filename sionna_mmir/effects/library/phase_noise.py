@@ -103,14 +103,44 @@ def _loo_terms(g, d, w, use):
     return num.sum(axis=2, keepdims=True) - num, den.sum(axis=2, keepdims=True) - den
 
 
+def _along(g, d, w, use):
+    """Per slot and sample: ``a^2`` (the whitened deviation's real part along
+    ``g``, squared), ``G = sum |g|^2 w`` and the rest's energy and real
+    dimensions, over the cells ``use``; ``[F, T, C, N]`` each (the rest's
+    dimensions ``[F, T, C, 1]``)."""
+    root = np.sqrt(w * use)
+    gw, dw = g * root, d * root
+    G = np.sum(np.abs(gw) ** 2, axis=2)
+    a2 = np.real(np.sum(np.conj(gw) * dw, axis=2)) ** 2 / np.maximum(G, 1e-300)
+    n = np.sum(np.broadcast_to(use, g.shape[:4] + (1,)), axis=2)
+    return a2, G, np.sum(np.abs(dw) ** 2, axis=2) - a2, 2.0 * n - 1.0
+
+
+def floor_scale(g, d, w, use=1.0) -> float:
+    """``s``: the white floor of the deviation ``d`` in units of ``1 / w``,
+    from what lies off the common error's direction (``2 R - 1`` real
+    dimensions per slot and sample, each of variance ``s / 2``); a floor
+    fitted to the whole residual (the static misfit with it) or to the whole
+    scatter (the common error's power with it) overstates it, and with it
+    the shrinkage of the prediction."""
+    a2, G, rest, dims = _along(g, d, w, use)
+    ok = (G > 0) & (dims >= 1)
+    if not ok.any():
+        return 1.0
+    return max(float(np.sum(rest[ok]) / (0.5 * np.sum(np.broadcast_to(dims, ok.shape)[ok]))),
+               1e-300)
+
+
 def common_prediction(g, d, w, lam: float, use=None) -> np.ndarray:
     """Each cell's chirp deviation predicted from the other Rx of its slot (module docstring).
 
     ``g`` ``[F, T, R, C, N]`` (:func:`slope_derivative` of the model), ``d`` the
-    deviation (time domain, same shape), ``w`` ``1 / sigma^2`` per cell
-    (broadcastable), ``lam`` the variance of ``e`` [Hz^2], ``use`` the predictor
-    cells (bool ``[F, T, R, C]``; None: all).  Returns ``e_-r g_r``."""
+    deviation (time domain, same shape), ``w`` ``1 / sigma^2`` per cell up to
+    a common scale (broadcastable; the scale is :func:`floor_scale`'s), ``lam``
+    the variance of ``e`` [Hz^2], ``use`` the predictor cells (bool
+    ``[F, T, R, C]``; None: all).  Returns ``e_-r g_r``."""
     use = 1.0 if use is None else np.asarray(use, np.float64)[..., None]
+    w = w / floor_scale(g, d, w, use)
     num, den = _loo_terms(g, d, w, use)
     return num / (den + 0.5 / max(lam, 1e-300)) * g
 
@@ -119,25 +149,18 @@ def fit_common(g, d, w, use=None) -> float:
     """``common_db`` by maximum likelihood of the deviation ``d`` on the cells
     ``use`` (None: all), bounded by :data:`COMMON_BOUNDS`.
 
-    Whitened by ``w`` (``1 / sigma^2`` per cell), each slot and sample's
-    deviation splits into its real part along ``g``,
+    Whitened by ``w`` (``1 / sigma^2`` per cell up to a common scale), each
+    slot and sample's deviation splits into its real part along ``g``,
     ``a = Re(g^H d) / |g| ~ N(0, lambda |g|^2 + s / 2)``, and the rest, white
-    with ``2 R - 1`` real dimensions of variance ``s / 2`` each; ``s``, the
-    scale of the white floor (which a floor fitted to the whole scatter
-    overstates by the common error's power), comes from the rest, then
-    ``lambda`` from ``a``.  Returns the lower bound where the error is not
-    there."""
+    with ``2 R - 1`` real dimensions of variance ``s / 2`` each; ``s``
+    (:func:`floor_scale`) comes from the rest, then ``lambda`` from ``a``.
+    Returns the lower bound where the error is not there."""
     use = 1.0 if use is None else np.asarray(use, np.float64)[..., None]
-    root = np.sqrt(w * use)
-    gw, dw = g * root, d * root
-    G = np.sum(np.abs(gw) ** 2, axis=2)                                 # [F, T, C, N]
-    a2 = np.real(np.sum(np.conj(gw) * dw, axis=2)) ** 2 / np.maximum(G, 1e-300)
-    n = np.sum(np.broadcast_to(use, g.shape[:4] + (1,)), axis=2)         # [F, T, C, 1]
-    ok = (G > 0) & (n >= 1)
+    a2, G, rest, dims = _along(g, d, w, use)
+    ok = (G > 0) & (dims >= 1)
     if not ok.any():
         return COMMON_BOUNDS[0]
-    rest = np.sum(np.abs(dw) ** 2, axis=2) - a2
-    s = max(float(np.sum(rest[ok]) / np.sum(np.broadcast_to(n - 0.5, ok.shape)[ok])), 1e-300)
+    s = floor_scale(g, d, w, use)
     a2, G = a2[ok], G[ok]
 
     def nll(db):
