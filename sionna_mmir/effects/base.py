@@ -213,6 +213,23 @@ class Effect:
         """
         raise NotImplementedError(f"{self.name} is not a variance effect")
 
+    #: predicts part of each cell's chirp-to-chirp deviation from the other
+    #: cells (a random effect shared across channels: the LO's frequency
+    #: error); see :meth:`deviation_prediction`
+    predicts_deviation = False
+
+    def deviation_prediction(self, x, d, values: dict, ctx, v, use=None) -> np.ndarray:
+        """The part of the chirp deviation ``d`` (time domain ``[F, T, R, C, N]``)
+        that an effect with ``predicts_deviation`` explains in each cell from
+        the other cells among ``use`` (bool ``[F, T, R, C]``; None: all); ``x``
+        the mean model, ``v`` its per-bin variance, ``values`` NumPy."""
+        raise NotImplementedError(f"{self.name} does not predict deviations")
+
+    def fit_deviation(self, x, d, values: dict, ctx, v, use=None) -> dict:
+        """``values`` with what :meth:`deviation_prediction` uses fitted to the
+        deviation ``d`` on the cells ``use`` (outside the Dr.Jit likelihood)."""
+        raise NotImplementedError(f"{self.name} does not predict deviations")
+
     def summary(self, p: dict, ctx) -> dict:
         """Physically meaningful, JSON-serialisable view of fitted values (NumPy ``p``)."""
         return {k: np.asarray(v).round(6).tolist() for k, v in p.items()}

@@ -354,12 +354,9 @@ class EffectModel:
         model's to explain, and without what :meth:`predict_deviation`
         predicts from the other cells among ``cells`` (None: all).  ``self``
         with one chirp loop."""
-        from .library._sensor_common import chirp_deviation
-
         if self.ctx.shape[3] < 2:
             return self
-        x, v = self.mean_variance_numpy()
-        d = chirp_deviation(self.y - x)
+        x, v, d = self._deviation_state()
         if self._deviation_predictors():
             d = d - self.predict_deviation(x, d, v, cells)
         new = self.copy()
@@ -384,7 +381,15 @@ class EffectModel:
 
     def _deviation_predictors(self) -> list:
         """Components that predict a cell's chirp deviation from the other cells."""
-        return [c for c in self.components if getattr(c.effect, "predicts_deviation", False)]
+        return [c for c in self.components if c.effect.predicts_deviation]
+
+    def _deviation_state(self) -> tuple:
+        """``(x, v, d)``: the current mean (time domain), its per-bin variance
+        and the residual's chirp deviation (None with one chirp loop)."""
+        from .library._sensor_common import chirp_deviation
+
+        x, v = self.mean_variance_numpy()
+        return x, v, chirp_deviation(self.y - x)
 
     def predict_deviation(self, x, d, v, cells=None) -> np.ndarray:
         """What the components that predict deviations
@@ -401,26 +406,21 @@ class EffectModel:
     def deviation_prediction_numpy(self) -> np.ndarray | None:
         """:meth:`predict_deviation` of the current residual's chirp deviation
         from all cells; None with one chirp loop or no such component."""
-        from .library._sensor_common import chirp_deviation
-
         if self.ctx.shape[3] < 2 or not self._deviation_predictors():
             return None
-        x, v = self.mean_variance_numpy()
-        return self.predict_deviation(x, chirp_deviation(self.y - x), v)
+        x, v, d = self._deviation_state()
+        return self.predict_deviation(x, d, v)
 
     def _fit_deviation_predictors(self, trainable, cells=None) -> None:
         """Fit what the ``trainable`` components that predict deviations
         predict with (``effect.fit_deviation``) on the residual's chirp
         deviation over ``cells``: outside the Dr.Jit likelihood, which holds
         their variance only."""
-        from .library._sensor_common import chirp_deviation
-
         picked = [self.components[i] for i in (trainable or [])
-                  if getattr(self.components[i].effect, "predicts_deviation", False)]
+                  if self.components[i].effect.predicts_deviation]
         if not picked or self.ctx.shape[3] < 2:
             return
-        x, v = self.mean_variance_numpy()
-        d = chirp_deviation(self.y - x)
+        x, v, d = self._deviation_state()
         for c in picked:
             c.values = c.effect.fit_deviation(x, d, c.values, self.ctx, v, cells)
 

@@ -254,8 +254,6 @@ class PhaseNoise(Effect):
         return float(np.clip(best[1], *L0_BOUNDS)), float(best[2])
 
     # ------------------------------------------------- common frequency error
-    #: predicts part of each cell's chirp-to-chirp deviation from the other
-    #: cells (:meth:`deviation_prediction`)
     predicts_deviation = True
 
     def deviation_prediction(self, x, d, values, ctx, v, use=None) -> np.ndarray:
