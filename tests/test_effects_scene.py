@@ -1096,7 +1096,7 @@ def test_20c_a_fitted_mover_is_held_fixed_on_chirp_averaged_data():
     # a variance effect enters with its chirp mean over C
     noisy = m.copy()
     noisy.add(PhaseNoise())
-    noisy.components[-1].values = {"L0": np.array([-60.0]), "beta": np.array([1.0])}
+    noisy.components[-1].values.update({"L0": np.array([-60.0]), "beta": np.array([1.0])})
     white = float(np.exp(noisy.nuisance.values["log_noise"][0]))
     extra = noisy.mean_variance_numpy()[1] - white
     part = noisy.chirp_averaged(freeze=True).components[-1].effect
