@@ -511,6 +511,10 @@ def test_15b_phase_noise_common_error_predicted_from_the_other_rx():
                        coherent_excess(meas / m.scale, ctx))
     db, gain, excess = found["common"]
     assert db == pytest.approx(20 * np.log10(e_rms), abs=1.5)          # dB re 1 Hz^2
+    # a skirt without the shared error is not phase noise of a shared LO
+    pn = PhaseNoise()
+    assert pn.fitted_gain_floor(m, {"common_db": np.array([COMMON_BOUNDS[0]])}) == np.inf
+    assert pn.fitted_gain_floor(m, {"common_db": np.array([db])}) == pn.gain_floor(ctx)
     assert gain > 500 and excess > 3.0
     for case in ("white", "droop"):
         db, gain, excess = found[case]

@@ -274,6 +274,18 @@ class PhaseNoise(Effect):
         db = fit_common(slope_derivative(x, ctx), d, cell_weights(v), use)
         return {**values, "common_db": np.array([db])}
 
+    def fitted_gain_floor(self, model, values) -> float:
+        """Not acceptable (an infinite floor) where the common frequency error
+        is identifiable (two or more Rx and chirp loops) and fitted at its
+        lower bound: one LO serves every Rx, so phase noise that is really
+        there shows in the error they share; a skirt alone is then some other
+        chirp-to-chirp scatter near the strong tones (a transmit droop)."""
+        F, T, R, C, N = model.ctx.shape
+        common = float(np.ravel(values.get("common_db", [COMMON_BOUNDS[1]]))[0])
+        if R >= 2 and C >= 2 and common <= COMMON_BOUNDS[0]:
+            return float("inf")
+        return self.gain_floor(model.ctx)
+
     # -------------------------------------------------------------- variance
     def variance(self, x, X, p, ctx):
         N = ctx.radar.num_samples
