@@ -357,7 +357,7 @@ class EffectModel:
         if self.ctx.shape[3] < 2:
             return self
         x, v, d = self._deviation_state()
-        if self._deviation_predictors():
+        if self.deviation_predictors():
             d = d - self.predict_deviation(x, d, v, cells)
         new = self.copy()
         new.y = x + d
@@ -379,7 +379,7 @@ class EffectModel:
         dev.fit(trainable=trainable, cells=cells, maxiter=maxiter)
         self.restore(dev.snapshot())
 
-    def _deviation_predictors(self) -> list:
+    def deviation_predictors(self) -> list:
         """Components that predict a cell's chirp deviation from the other cells."""
         return [c for c in self.components if c.effect.predicts_deviation]
 
@@ -399,17 +399,9 @@ class EffectModel:
         other cells among ``cells`` (boolean ``[F, T, R, C]``; None: all);
         ``x`` and ``v`` the current mean (time domain) and per-bin variance."""
         out = np.zeros_like(d)
-        for c in self._deviation_predictors():
+        for c in self.deviation_predictors():
             out = out + c.effect.deviation_prediction(x, d, c.values, self.ctx, v, cells)
         return out
-
-    def deviation_prediction_numpy(self) -> np.ndarray | None:
-        """:meth:`predict_deviation` of the current residual's chirp deviation
-        from all cells; None with one chirp loop or no such component."""
-        if self.ctx.shape[3] < 2 or not self._deviation_predictors():
-            return None
-        x, v, d = self._deviation_state()
-        return self.predict_deviation(x, d, v)
 
     def _fit_deviation_predictors(self, trainable, cells=None) -> None:
         """Fit what the ``trainable`` components that predict deviations
@@ -745,7 +737,7 @@ class EffectModel:
                      + 1j * np.median(r.imag, axis=3, keepdims=True))
         elif deviation and C > 1:
             r = (r - r.mean(axis=3, keepdims=True)) * np.sqrt(C / (C - 1))
-        if deviation and C > 1 and self._deviation_predictors():
+        if deviation and C > 1 and self.deviation_predictors():
             d = np.fft.ifft(r, axis=-1, norm="ortho")
             r = np.fft.fft(d - self.predict_deviation(x, d, v), axis=-1, norm="ortho")
         r2 = np.abs(r[cells]) ** 2

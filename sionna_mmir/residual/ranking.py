@@ -129,8 +129,8 @@ def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple
         out["slots"] = base.nll_profiled(test, True, by_slot=True,
                                          deviation=_slot_deviation(model.ctx.shape[3] > 1))[1]
     if "energy" in needs:
-        out["energy"] = base.residual_energy(test)
         out["bins"], out["power"] = base.energy_by_bin(test)
+        out["energy"] = float(out["bins"].sum())          # Parseval: sum |y - x|^2
     if "split" in needs:
         out["split"] = base.nll_profiled(test, split=True) * n_test
     return base.nuisance.values, out
@@ -346,14 +346,16 @@ def penalty_per_param(penalty, n_samples: float) -> float:
     return float(penalty)
 
 
-def _claimed(model, excess):
+def _claimed(model, x, v, excess):
     """The scatter a noise model claims per cell and bin: its variance over
     the white floor ``excess`` plus the power of the deviation it predicts
-    from other cells (:meth:`~sionna_mmir.effects.model.EffectModel.deviation_prediction_numpy`),
-    which :func:`memory_stats` weighs the chirp memory by."""
-    pred = model.deviation_prediction_numpy()
-    if pred is None:
+    from other cells (:meth:`~sionna_mmir.effects.model.EffectModel.predict_deviation`;
+    ``x``, ``v`` the model's current mean and variance), which
+    :func:`memory_stats` weighs the chirp memory by."""
+    d = chirp_deviation(model.y - x)
+    if d is None or not model.deviation_predictors():
         return excess
+    pred = model.predict_deviation(x, d, v)
     return excess + np.abs(np.fft.fft(pred, axis=-1, norm="ortho")) ** 2
 
 
@@ -380,10 +382,10 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool,
                                          deviation=_slot_deviation(deviation))[1]
         x, v = cand.mean_variance_numpy()
         white = float(np.exp(cand.nuisance.values["log_noise"][0]))
-        out["memory"] = memory_stats(cand.y - x, _claimed(cand, v - white), ~train)
+        out["memory"] = memory_stats(cand.y - x, _claimed(cand, x, v, v - white), ~train)
     else:
-        out["energy"] = cand.residual_energy(~train)
         out["bins"] = cand.energy_by_bin(~train)[0]
+        out["energy"] = float(out["bins"].sum())          # Parseval: sum |y - x|^2
     out["s"] = time.perf_counter() - t0
     return out
 

@@ -69,16 +69,15 @@ def coherent_excess(y: np.ndarray, ctx) -> float | None:
     A shared amplitude change (a transmit droop) lies along ``x``, at right
     angles to ``g`` for each path, and does not count.  None with one chirp
     loop or one Rx."""
-    from ..effects.library.phase_noise import slope_derivative
+    from ..effects.library.phase_noise import along_common, slope_derivative
 
     d = chirp_deviation(y)
     if d is None or y.shape[2] < 2:
         return None
     g = slope_derivative(y.mean(axis=3, keepdims=True), ctx)
     floor = max(float(np.median(np.abs(d) ** 2)) / np.log(2.0), 1e-300)
-    proj = np.real(np.sum(np.conj(g) * d, axis=2)) ** 2
-    norm = np.maximum(np.sum(np.abs(g) ** 2, axis=2), 1e-300)
-    return float(np.mean(proj / norm) / (0.5 * floor))
+    a2 = along_common(g, d, 1.0 / floor)[0]
+    return float(np.mean(a2) / 0.5)
 
 
 def screen(y: np.ndarray, raw_scale: float, candidates, ctx=None) -> dict:

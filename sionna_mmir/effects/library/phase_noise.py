@@ -103,7 +103,7 @@ def _loo_terms(g, d, w, use):
     return num.sum(axis=2, keepdims=True) - num, den.sum(axis=2, keepdims=True) - den
 
 
-def _along(g, d, w, use):
+def along_common(g, d, w, use=1.0):
     """Per slot and sample: ``a^2`` (the whitened deviation's real part along
     ``g``, squared), ``G = sum |g|^2 w`` and the rest's energy and real
     dimensions, over the cells ``use``; ``[F, T, C, N]`` each (the rest's
@@ -123,7 +123,7 @@ def floor_scale(g, d, w, use=1.0) -> float:
     fitted to the whole residual (the static misfit with it) or to the whole
     scatter (the common error's power with it) overstates it, and with it
     the shrinkage of the prediction."""
-    a2, G, rest, dims = _along(g, d, w, use)
+    a2, G, rest, dims = along_common(g, d, w, use)
     ok = (G > 0) & (dims >= 1)
     if not ok.any():
         return 1.0
@@ -156,7 +156,7 @@ def fit_common(g, d, w, use=None) -> float:
     (:func:`floor_scale`) comes from the rest, then ``lambda`` from ``a``.
     Returns the lower bound where the error is not there."""
     use = 1.0 if use is None else np.asarray(use, np.float64)[..., None]
-    a2, G, rest, dims = _along(g, d, w, use)
+    a2, G, rest, dims = along_common(g, d, w, use)
     ok = (G > 0) & (dims >= 1)
     if not ok.any():
         return COMMON_BOUNDS[0]
