@@ -44,6 +44,9 @@ def test_01_planted_gains_adopted_and_reported(report):
         saved = json.load(f)
     assert {"first", "final", "adoptions", "scene_mismatch", "unexplained",
             "stop_reason", "vetoed"} <= set(saved)
+    # the RA fit's target: calibrated per channel or not, and why
+    cal = saved["info"]["target_calibration"]
+    assert {"applied", "ra_corr_raw", "ra_corr_calibrated", "phases_deg"} <= set(cal)
     a = saved["adoptions"][0]
     assert {"name", "side", "verdict", "before", "after", "unexplained"} <= set(a)
     # every adopted mean-only effect lowered the held-out residual energy

@@ -31,12 +31,9 @@ class SideResult:
 
 def target_ra(frames: np.ndarray, radar, **ra_kwargs) -> np.ndarray:
     """Non-coherent mean of the frames' RA maps (``frames`` [F, tx, rx, chirp, sample])."""
-    from ..processing.imaging import range_azimuth
+    from ..processing.imaging import mean_range_azimuth
 
-    frames = np.asarray(frames)
-    if frames.ndim == 4:
-        frames = frames[None]
-    return np.mean([range_azimuth(f, radar, **ra_kwargs)[0] for f in frames], axis=0)
+    return mean_range_azimuth(frames, radar, **ra_kwargs)
 
 
 def evaluate(model, latents, ra_ref, adc_ref, seeds=(9001, 9002)):

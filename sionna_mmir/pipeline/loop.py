@@ -7,7 +7,9 @@ Stages (each checkpointed; ``resume`` continues after the last finished one):
    corner-reflector capture without a mesh, the trihedral-and-floor scene
    at the detected corner);
 2. **fit** -- per-vertex materials and beam patterns to the range-azimuth
-   map (:class:`~sionna_mmir.fit.MMIRModel`);
+   map (:class:`~sionna_mmir.fit.MMIRModel`), its target phase-calibrated
+   per channel against the initial scene where the array's phases are
+   scrambled (:mod:`~sionna_mmir.fit.target_calibration`);
 3. **base** -- the fitted scene rendered and split per object, refined in
    the complex ADC domain (per-object gains, radar pose against the mesh
    frame): the *first* model, right in range and phase;
@@ -257,7 +259,6 @@ class Loop:
         """Stage 2: the range-azimuth fit of materials and beam patterns."""
         if self.model.latents is not None or self.req.fit_iterations == 0:
             return
-        from ..compare.harness import target_ra
         from ..fit import fit
 
         t0 = time.perf_counter()
@@ -266,13 +267,29 @@ class Loop:
             from ..fit.profiled import ProfiledModel
 
             model = ProfiledModel(model, self.model.profile, self.model.capture.frames[0])
-        res = fit(model, target_ra(self.model.capture.frames, self.model.radar),
+        res = fit(model, self._target(model),
                   iterations=self.req.fit_iterations, lr=self.req.lr, seed=self.req.seed,
                   progress=self.req.progress,
                   checkpoint=os.path.join(self.tmp, "fit_mmir.h5"))
         self.model.latents = res.latents
         self.timings["fit_s"] = time.perf_counter() - t0
         self._save_state()
+
+    def _target(self, model):
+        """The RA fit target: the capture's map, phase-calibrated per channel
+        against the initial scene where that clearly helps (not under a
+        sensor profile, which carries the unit's calibration)."""
+        from ..compare.harness import target_ra
+        from ..fit.target_calibration import calibrate_target
+        from ..paths.render import to_numpy
+
+        frames = self.model.capture.frames
+        if self.model.profile is not None:
+            return target_ra(frames, self.model.radar)
+        adc, _ = model.render(model.latents(), seed=self.req.seed)
+        target, cal = calibrate_target(frames, to_numpy(adc), self.model.radar)
+        self.info["target_calibration"] = cal.summary()
+        return target
 
     def base(self):
         """Stage 3: the per-object basis and its complex-domain refinement."""

@@ -25,14 +25,11 @@ import dataclasses
 import numpy as np
 
 from ..effects import EffectContext, EffectModel
-from ..effects.library.scene_mismatch import ObjectGain, PoseOffset
+from ..effects.library.scene_mismatch import BASE_REFINEMENT
 from ..effects.scene_basis import SceneBasis, mesh_planes
 from ..errors import InputValueError
 from ..fit import MMIRModel
 from ..paths.options import SolverOptions
-
-#: the scene-side effects of the base model, fitted before any diagnosis
-BASE_REFINEMENT = (ObjectGain, PoseOffset)
 
 
 def loop_solver_options(**changes) -> SolverOptions:

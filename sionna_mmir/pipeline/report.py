@@ -105,11 +105,21 @@ def _veto_reason(v: dict) -> str:
             f"{v['residual_energy_db'][1]:.2f} dB")
 
 
+def _calibration_line(cal) -> list:
+    """The RA fit target's per-channel calibration, in words (or nothing)."""
+    if not cal:
+        return []
+    what = "phase-calibrated per channel" if cal["applied"] else "the raw capture's map"
+    return [f"Range-azimuth fit target: {what} (RA corr with the initial scene "
+            f"{cal['ra_corr_raw']:.3f} raw, {cal['ra_corr_calibrated']:.3f} calibrated).", ""]
+
+
 def loop_markdown(doc: dict) -> str:
     """``report.md``: the error before and after every adoption, and what is left."""
     head = "| model | " + " | ".join(METRICS) + " |\n|---|" + "---|" * len(METRICS)
     L = [f"# sionna-mmir loop: {doc['capture']}", "",
          f"Radar {doc['radar']}; scene: {doc['scene']} ({', '.join(doc['objects'])}).", "",
+         *_calibration_line(doc["info"].get("target_calibration")),
          "## Error before and after", "", head, _row("first (scene refined)", doc["first"])]
     L += [_row(f"+ {a['name']} ({a['side']})", a["after"]) for a in doc["adoptions"]]
     L += [f"- vetoed {v['name']} in round {v['round'] + 1}: {_veto_reason(v)}"

@@ -125,6 +125,18 @@ def range_azimuth(adc, radar: RadarConfig, *, range_window="hann", azimuth_windo
     return np.ascontiguousarray(ra), ranges, az
 
 
+def mean_range_azimuth(frames, radar: RadarConfig, **ra_kwargs) -> np.ndarray:
+    """Non-coherent mean of the frames' range-azimuth maps.
+
+    ``frames``: complex ``[F, T, R, C, N]`` (or one frame ``[T, R, C, N]``);
+    ``ra_kwargs`` as :func:`range_azimuth`.  Returns float
+    ``[n_range, n_azimuth]``."""
+    frames = np.asarray(frames)
+    if frames.ndim == 4:
+        frames = frames[None]
+    return np.mean([range_azimuth(f, radar, **ra_kwargs)[0] for f in frames], axis=0)
+
+
 def range_azimuth_elevation(adc, radar: RadarConfig, *, range_window="hann",
                             azimuth_window="hann", elevation_window="hann",
                             doppler_window="hann", n_range: int | None = None,

@@ -267,6 +267,15 @@ class PoseOffset(BasisEffect):
                 "translation_mm_scene_frame": (1e3 * t).round(3).tolist()}
 
 
+#: the base model's complex-domain refinement, fitted before any diagnosis
+#: (:meth:`~sionna_mmir.pipeline.RadarModel.refine`): per-object gains, then
+#: the radar pose against the mesh frame
+BASE_REFINEMENT = (ObjectGain, PoseOffset)
+#: their names: a sensor effect whose signature the refinement absorbs while
+#: the effect is missing (per-channel phases read as a turned radar, a beat
+#: shift as a moved one) refits them beside it (``Effect.refit_beside``)
+BASE_REFINEMENT_NAMES = tuple(cls.name for cls in BASE_REFINEMENT)
+
 class ObjectPattern(BasisEffect):
     """Per-Tx x per-Rx complex gain of each strong object (``2 (T + R)`` each)."""
 
