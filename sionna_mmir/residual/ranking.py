@@ -121,41 +121,19 @@ def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple
     base = model.copy()
     base.fit(trainable=[], cells=folds[k], maxiter=maxiter)
     test = ~folds[k]
-    out = _held_out_scores(base, test, needs)
-    out["beside"] = {}
-    for names in _besides(model, needs):
-        again = base.copy()
-        again.fit(trainable=_refitted(again, names), cells=folds[k], maxiter=maxiter)
-        out["beside"][names] = _held_out_scores(again, test, needs)
-    return base.nuisance.values, out
-
-
-def _held_out_scores(base, test, needs) -> dict:
-    """The base scores of :func:`_fold_base_task` on the held-out cells ``test``."""
-    n_test = float(test.sum()) * base.ctx.shape[-1]
+    n_test = float(test.sum()) * model.ctx.shape[-1]
     out = {"nll": base.nll_profiled(test) * n_test}
     if "dev" in needs:
         out["dev"] = base.nll_profiled(test, deviation=True) * n_test
     if "slots" in needs:
         out["slots"] = base.nll_profiled(test, True, by_slot=True,
-                                         deviation=_slot_deviation(base.ctx.shape[3] > 1))[1]
+                                         deviation=_slot_deviation(model.ctx.shape[3] > 1))[1]
     if "energy" in needs:
         out["bins"], out["power"] = base.energy_by_bin(test)
         out["energy"] = float(out["bins"].sum())          # Parseval: sum |y - x|^2
     if "split" in needs:
         out["split"] = base.nll_profiled(test, split=True) * n_test
-    return out
-
-
-def _refitted(model, names) -> list:
-    """Indices of ``model``'s components named in ``names`` (a candidate's
-    ``refit_beside``)."""
-    return [i for i, c in enumerate(model.components) if c.effect.name in set(names)]
-
-
-def _besides(model, needs) -> list:
-    """The ``refit_beside`` sets named in ``needs`` that ``model`` holds."""
-    return [n for n in needs if isinstance(n, tuple) and _refitted(model, n)]
+    return base.nuisance.values, out
 
 
 def _slot_deviation(deviation: bool):
@@ -178,10 +156,6 @@ def _base_needs(model, candidates) -> tuple:
         needs.append("energy")
     if any(_split_scored(e, model) for e in candidates):
         needs.append("split")
-    # a candidate that refits adopted components beside it is compared with
-    # the base refitting them alone, so it is credited only with what it adds
-    needs += sorted({tuple(e.refit_beside) for e in candidates
-                     if e.refit_beside and _refitted(model, e.refit_beside)})
     return tuple(needs)
 
 
@@ -400,7 +374,6 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool,
         _fit_candidate(cand, eff, train, maxiter)
     last = cand.components[-1]
     out = {"key": (g, k, i), "nll": cand.nll_profiled(~train, deviation=deviation),
-           "beside": tuple(eff.refit_beside) if _refitted(base, eff.refit_beside) else None,
            "n_params": int(last.n_params), "dev": deviation,
            "split": not deviation and cand.split_likelihood(),
            "floor": float(last.effect.fitted_gain_floor(cand, last.values))}
@@ -498,17 +471,7 @@ def _races(model, n_folds: int) -> bool:
 def _fold_gain(base, fit) -> float:
     """Held-out NLL reduction [nats] of one (candidate, fold) ``fit`` against
     its fold ``base`` (an entry of :func:`rank_groups`'s bases)."""
-    return _base_nll(_reference(base[2], fit), fit) - fit["nll"] * base[3]
-
-
-def _reference(scores: dict, fit: dict) -> dict:
-    """The fold base's scores a candidate's ``fit`` is compared with: those of
-    the base with the candidate's ``refit_beside`` components refitted on the
-    same training cells where it refitted them (an IF filter beside the
-    object gains, a channel gain beside the base refinement), else the
-    plain base's."""
-    names = fit.get("beside")
-    return scores["beside"].get(names, scores) if names else scores
+    return _base_nll(base[2], fit) - fit["nll"] * base[3]
 
 
 def _base_nll(base: dict, fit: dict) -> float:
@@ -543,7 +506,6 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
             secs += fit["s"]
             floors.append(fit["floor"])
             gains.append(_fold_gain(bases[k], fit))
-            base = _reference(base, fit)
             if eff.kind == "variance":
                 cell_gains.append(base["slots"] - fit["slots"])
                 memory.append(fit["memory"])

@@ -15,7 +15,6 @@ import numpy as np
 
 from .. import ops
 from ..base import Effect, ParamSpec
-from .scene_mismatch import BASE_REFINEMENT_NAMES
 
 
 def channel_gains(model: np.ndarray, data: np.ndarray) -> np.ndarray:
@@ -48,9 +47,6 @@ class ChannelGain(Effect):
 
     name = "channel_gain"
     every_path = True
-    #: the base refinement took part of it before it was modelled
-    #: (per-channel phases read as a turned radar, gains as object gains)
-    refit_beside = BASE_REFINEMENT_NAMES
     kind = "mean"
     stage = 1
     per_unit = True

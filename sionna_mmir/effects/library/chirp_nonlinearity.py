@@ -62,7 +62,6 @@ from .. import ops
 from ..base import Effect, ParamSpec
 from ._sensor_common import (RowExtension, band_frequencies, check_float, check_int,
                              last_axis, legendre_basis, scalar, unit_fast_time)
-from .scene_mismatch import BASE_REFINEMENT_NAMES
 
 MHZ = 1e6
 
@@ -85,9 +84,6 @@ class ChirpNonlinearity(Effect):
 
     name = "chirp_nonlinearity"
     every_path = True
-    #: the base refinement took part of it before it was modelled
-    #: (its range-dependent phase error reads as moved or re-weighted objects)
-    refit_beside = BASE_REFINEMENT_NAMES
     kind = "mean"
     stage = 1
     per_unit = True

@@ -39,7 +39,6 @@ from .. import ops
 from ..base import Effect, ParamSpec
 from ._sensor_common import (channel_products, check_float, last_axis, median_polish,
                              refine_peak, scalar, scan)
-from .scene_mismatch import BASE_REFINEMENT_NAMES
 
 PS = 1e-12
 
@@ -93,9 +92,6 @@ class DelayOffset(Effect):
 
     name = "delay_offset"
     every_path = True
-    #: the base refinement took part of it before it was modelled
-    #: (per-channel carrier phases read as a turned radar, the mean delay as a moved one)
-    refit_beside = BASE_REFINEMENT_NAMES
     kind = "mean"
     stage = 1
     per_unit = True

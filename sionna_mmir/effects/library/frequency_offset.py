@@ -26,7 +26,6 @@ import numpy as np
 from .. import ops
 from ..base import Effect, ParamSpec
 from ._sensor_common import channel_products, check_float, last_axis, refine_peak, scan
-from .scene_mismatch import BASE_REFINEMENT_NAMES
 
 KHZ = 1e3
 
@@ -51,9 +50,6 @@ class FrequencyOffset(Effect):
 
     name = "frequency_offset"
     every_path = True
-    #: the base refinement took part of it before it was modelled
-    #: (a beat shift reads as a moved radar)
-    refit_beside = BASE_REFINEMENT_NAMES
     kind = "mean"
     stage = 1
     per_unit = True
