@@ -277,6 +277,7 @@ BASE_REFINEMENT = (ObjectGain, PoseOffset)
 #: NOTES.md)
 BASE_REFINEMENT_NAMES = tuple(cls.name for cls in BASE_REFINEMENT)
 
+
 class ObjectPattern(BasisEffect):
     """Per-Tx x per-Rx complex gain of each strong object (``2 (T + R)`` each)."""
 
