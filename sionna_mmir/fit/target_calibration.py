@@ -91,18 +91,20 @@ def channel_phases(frames, model_adc) -> np.ndarray:
         channel's model onto its capture, relative to their normalised sum;
         zero where a channel's model is empty.
     """
+    from ..effects.library.channel_gain import channel_gains
+
     y = np.asarray(frames)
     y = y.reshape((-1,) + y.shape[-4:]).mean(axis=(0, 3))          # [T, R, N]
     m = np.asarray(model_adc).mean(axis=2)                          # [T, R, N]
     if m.shape != y.shape:
         raise ValueError(f"model ADC {np.asarray(model_adc).shape} does not match the "
                          f"capture's channels {np.asarray(frames).shape}")
-    den = np.sum(np.abs(m) ** 2, axis=-1)
-    g = np.where(den > 0, np.sum(np.conj(m) * y, axis=-1) / np.where(den > 0, den, 1.0), 0.0)
+    seen = np.any(m != 0, axis=-1)
+    g = np.where(seen, channel_gains(m[None, :, :, None], y[None, :, :, None]), 0.0)
     ref = np.sum(g)
     if abs(ref) == 0:
         return np.zeros(g.shape)
-    return np.where(g != 0, np.angle(g * np.conj(ref)), 0.0)
+    return np.where(seen, np.angle(g * np.conj(ref)), 0.0)
 
 
 def calibrate_target(frames, model_adc, radar, *, min_gain: float = MIN_RA_GAIN):

@@ -271,11 +271,6 @@ class PoseOffset(BasisEffect):
 #: (:meth:`~sionna_mmir.pipeline.RadarModel.refine`): per-object gains, then
 #: the radar pose against the mesh frame
 BASE_REFINEMENT = (ObjectGain, PoseOffset)
-#: their names, for ``Effect.refit_beside``: a sensor effect whose signature
-#: the refinement absorbs while the effect is missing (per-channel phases read
-#: as a turned radar) can refit them beside it when scored (not the default;
-#: NOTES.md)
-BASE_REFINEMENT_NAMES = tuple(cls.name for cls in BASE_REFINEMENT)
 
 
 class ObjectPattern(BasisEffect):
