@@ -296,6 +296,57 @@ def test_11_if_filter_is_scored_with_the_object_gains_refitted_beside_it():
     assert held > 0 and with_gains > 1.25 * held, (base, nll)    # measured 0.341 / 0.253
 
 
+def test_11c_an_if_filter_starts_at_its_noise_notch_where_object_gains_took_its_response(
+        monkeypatch):
+    """Three targets behind two first-order high-pass stages (corners a fifth
+    of the nearest beat frequency) and receiver noise through the same stages
+    (truth: ``scipy.signal.freqs`` per path, ``scipy.signal.lfilter`` on the
+    noise).  The base fit's object gains take the targets' attenuation and
+    phase, so the filter's signal-side response explains nothing more; the
+    notch it cuts into the noise at near-DC bins is its signature.  Filtered
+    once more, the model would count the attenuation twice: the start is
+    judged with the object gains able to take it back (they are refitted
+    beside the filter), so the filter starts at the notch, not switched off,
+    and its fit finds the planted corners (to 20 %: the notch's shape at 8
+    chirps of 12 channels identifies them to about 15 %; 0.82-1.16 of the
+    planted corner over noise levels and seeds)."""
+    from scipy import signal
+
+    from sionna_mmir.effects.library.if_filter import IFFilter
+    from sionna_mmir.residual.ranking import _fit_candidate
+
+    radar = _radar(chirps=8)
+    centre = np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0)
+    f_b = 2 * np.linalg.norm(TARGETS - centre, axis=1) * radar.slope / SPEED_OF_LIGHT
+    f_hp = f_b.min() / 5
+    _, H = signal.freqs([1.0, 0.0], [1.0, 2 * np.pi * f_hp], worN=2 * np.pi * f_b)
+    B = _adc(radar, TARGETS, np.ones(3))
+    n = _noise(B.shape[1:], 0.01 * np.abs(B).max())
+    b, a = signal.butter(1, f_hp, "highpass", fs=radar.sample_rate)
+    n = signal.lfilter(b, a, signal.lfilter(b, a, np.concatenate([n, n], -1), axis=-1),
+                       axis=-1)[..., B.shape[-1]:]
+    y = np.tensordot(H * H, B, axes=1) + n
+    m = _model(radar, y, _basis(radar, B, TARGETS))
+    m.add(ObjectGain())
+    m.fit(maxiter=200)
+    off = IFFilter()
+    cand = m.copy()
+    comp = cand.add(off)
+    corners = 10 ** np.r_[comp.values["log_fc"][0], comp.values["log_hp2"]] * 1e3
+    assert np.all(corners > 0.3 * f_hp), corners              # the noise start, not off
+    _fit_candidate(cand, off, None, 200)
+    corners = 10 ** np.r_[comp.values["log_fc"][0], comp.values["log_hp2"]] * 1e3
+    assert np.allclose(corners, f_hp, rtol=0.2), (corners, f_hp)
+    assert float(comp.values["pre_noise"][0]) > 0.8
+    assert (m.nll() - cand.nll()) * np.prod(m.ctx.shape) > 200     # measured 1363
+    # judged with the object gains held, the start is the filter switched off
+    judged = IFFilter._start_nll
+    monkeypatch.setattr(IFFilter, "_start_nll", lambda self, ctx, model, data, st, absorbed:
+                        judged(self, ctx, model, data, st, False))
+    comp = m.copy().add(IFFilter())
+    assert 10 ** comp.values["log_fc"][0] * 1e3 < 0.01 * f_hp
+
+
 def test_11b_per_channel_delays_are_scored_with_the_base_refinement_refitted_beside_them():
     """Three targets seen through per-Tx and per-Rx delays of several carrier
     cycles (truth: exact per-pair delays plus the planted ones).  The base

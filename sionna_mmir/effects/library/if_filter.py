@@ -295,7 +295,8 @@ class IFFilter(Effect):
         starts = [sig._replace(rho=self._noise_init(ctx, noise, [(sig.hp, sig.hp2)],
                                                     [sig.lp]).rho),
                   shaped._replace(settled=sig.settled)]
-        nll = [self._start_nll(ctx, model, data, st) for st in starts]
+        absorbed = ctx.basis is not None
+        nll = [self._start_nll(ctx, model, data, st, absorbed) for st in starts]
         return starts[int(np.argmin(nll))]
 
     def _hp_pairs(self, hps, off) -> list:
@@ -345,10 +346,18 @@ class IFFilter(Effect):
                                 self.lowpass_order, r.sample_rate / r.num_samples, st.rho,
                                 c["f_hp2"])
 
-    def _start_nll(self, ctx, model, data, st) -> float:
+    def _start_nll(self, ctx, model, data, st, absorbed: bool = False) -> float:
         """Mean NLL per sample of ``data`` under ``g filter(model)`` (``g`` least
         squares) and the white floor shaped by ``s`` (profiled), cells that are
         all zero (held out) left out.
+
+        ``absorbed``: the model's per-object gains are refitted beside the
+        filter (:attr:`refit_beside`) and can take its response at the objects
+        back, so the mean part of a start is never worse than the model left
+        unfiltered.  Without it a noise start (a notch at near-DC bins, where
+        the receiver noise passes the high-pass) loses to no filter at all
+        whenever the base fit's object gains took the filter's attenuation of
+        the nearest targets: filtered once more, the model counts it twice.
 
         With ``C >= 2`` chirp loops it is split as the model's likelihood is
         (:meth:`~sionna_mmir.effects.model.EffectModel.split_likelihood`):
@@ -365,8 +374,10 @@ class IFFilter(Effect):
         if dev is None:
             return self._shape_nll(ctx, r, st)
         C = r.shape[3]
-        mean = seen_chirp_mean(r)
-        return (self._white_nll(mean) + (C - 1) * self._shape_nll(ctx, dev, st)) / C
+        mean = self._white_nll(seen_chirp_mean(r))
+        if absorbed:
+            mean = min(mean, self._white_nll(seen_chirp_mean(data - model)))
+        return (mean + (C - 1) * self._shape_nll(ctx, dev, st)) / C
 
     @staticmethod
     def _white_nll(residual) -> float:
