@@ -116,6 +116,16 @@ def _if_filter(radar, clean, rng):
     return synthesize_adc(radar, a * h, tau)[None].astype(np.complex128)
 
 
+def _highpass_noise(radar, noise, fc=250e3):
+    """``noise`` through :func:`_if_filter`'s high-pass, run from the previous
+    chirp (``scipy.signal.lfilter`` on the bilinear transform)."""
+    from scipy import signal
+
+    b, a = signal.butter(1, fc, "highpass", fs=radar.sample_rate)
+    n = noise.shape[-1]
+    return signal.lfilter(b, a, np.concatenate([noise, noise], -1), axis=-1)[..., n:]
+
+
 def _adc_clipping(radar, clean, rng):
     a = 0.55 * max(np.abs(clean.real).max(), np.abs(clean.imag).max())
     return np.clip(clean.real, -a, a) + 1j * np.clip(clean.imag, -a, a)
@@ -196,6 +206,8 @@ def test_01_single_effect_is_ranked_first_and_explained(truth):
     clean = _render(radar, TARGETS)
     with_effect = SINGLE[truth](radar, clean, rng)
     noise = _noise(clean.shape, rng)
+    if truth == "if_filter":                 # the receiver's thermal noise passes the filter
+        noise = _highpass_noise(radar, noise)
     measured = with_effect + noise
     if truth == "adc_clipping":              # an ADC clips what reaches it, noise included
         measured = SINGLE[truth](radar, clean + noise, rng)

@@ -292,6 +292,9 @@ def _frozen(comp) -> bool:
 #: a mean-kind adoption is undone when its joint refit raises the residual
 #: energy ``|y - x|^2`` of all cells by more than this [dB] (:func:`_mean_worse`)
 MEAN_GUARD_DB = 0.1
+#: a variance-kind adoption is undone when its joint refit raises that energy
+#: by more than this [dB] (:func:`_mean_worse`)
+VARIANCE_GUARD_DB = 1.0
 
 
 def _mean_worse(eff, before: dict, after: dict) -> bool:
@@ -306,10 +309,17 @@ def _mean_worse(eff, before: dict, after: dict) -> bool:
     really there lowers the squared error of the mean model, on held-out
     channels (:attr:`CandidateScore.energy_change_db`, required <= 0 in the
     ranking) and after the joint refit on all cells (checked here).  Variance
-    effects only reweight the mean fit and are not held to it, nor are mean
-    effects that also shape the receiver noise (an IF filter: most of its
-    signature is the noise notch, and its fit trades a little mean misfit
-    for it)."""
-    if not _mean_only(eff):
-        return False
-    return after["residual_energy_db"] > before["residual_energy_db"] + MEAN_GUARD_DB
+    effects that also shape the receiver noise are not held to it (an IF
+    filter: most of its signature is the noise notch, and its fit trades a
+    little mean misfit for it).
+
+    Variance effects reweight the mean fit, which moves its squared error a
+    little (a planted noise floor or phase noise: under 0.1 dB in the
+    suite's runs); one whose joint refit raises it by more than
+    :data:`VARIANCE_GUARD_DB` is taking misfit the mean should explain (a
+    phase-noise skirt on corner_4m7 let the refit give up 2.1 dB of the
+    corner's fit) and is undone too."""
+    rise = after["residual_energy_db"] - before["residual_energy_db"]
+    if eff.kind == "variance":
+        return rise > VARIANCE_GUARD_DB
+    return _mean_only(eff) and rise > MEAN_GUARD_DB
