@@ -276,7 +276,8 @@ def test_12_blockwise_refit_reaches_the_joint_fit():
     the same values; the static block's optimum is the full objective's
     optimum in those parameters (a full-data fit of them from there gains
     nothing).  The blocks are not taken for one chirp loop, a mask that
-    splits a channel's chirps, or ego motion (a map of the whole scene)."""
+    splits a channel's chirps, ego motion (a map of the whole scene), or a
+    static model with a noise shaper (its joint fit is on the chirp average)."""
     from sionna_mmir.effects import blockwise
     from sionna_mmir.effects.library.ego_motion import EgoMotion
     from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
@@ -328,6 +329,14 @@ def test_12_blockwise_refit_reaches_the_joint_fit():
     assert blockwise.blocks(block, cells[..., :1] & np.ones(ctx.shape[:4], bool)) is not None
     block.add(EgoMotion())
     assert blockwise.blocks(block) is None
+    # nothing chirp-varying in the mean and a noise shaper: the one joint fit
+    # runs on the chirp average already (split_averaged), no blocks
+    from sionna_mmir.effects.library.if_filter import IFFilter
+
+    static = EffectModel(ctx, y, clean)
+    static.add(MissingScatterer()), static.add(ChannelGain())
+    static.add(IFFilter(highpass_stages=1, transient=False))
+    assert static.split_averaged() is not None and blockwise.blocks(static) is None
 
 
 def test_13_a_static_model_with_a_noise_shaper_is_fitted_on_the_chirp_average():

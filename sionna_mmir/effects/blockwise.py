@@ -59,8 +59,14 @@ def blocks(model, cells=None):
     """``(static, varying)`` component indices of ``model`` for the two
     blocks, or None where the blockwise refit does not apply: one chirp loop,
     a component without a chirp-averaged counterpart, a mask that does not
-    hold every chirp of its channels, an empty block, or a chirp-varying
-    map of the scene (ego motion, :func:`_maps_scene`).
+    hold every chirp of its channels, an empty block, a chirp-varying
+    map of the scene (ego motion, :func:`_maps_scene`), or a model whose
+    one joint fit runs on the chirp average already
+    (:meth:`~.model.EffectModel.split_averaged`: nothing chirp-varying in
+    the mean and a noise shaper), exact and as cheap, where the blocks
+    would only alternate between coupled components (a Tx->Rx leakage
+    regrowing behind an IF filter that replaces it: the AWR1843 coupling +
+    IF-filter pair lost its filter to the descent).
 
     ``static``: the chirp-static mean and basis components with parameters
     that neither shape nor spread the noise and come before every
@@ -80,6 +86,8 @@ def blocks(model, cells=None):
     flags, order = model.static_flags(), model._order()
     moving = [order.index(i) for i, (c, s) in enumerate(zip(model.components, flags))
               if not s and c.effect.kind == "mean"]
+    if not moving and model.split_averaged(cells) is not None:
+        return None
     first = min(moving, default=len(order))
     static, varying = [], []
     for i, (c, s) in enumerate(zip(model.components, flags)):
