@@ -191,3 +191,18 @@ def assert_same_paths(paths, *others) -> None:
     a = paths.numpy()[0]
     for other in others:
         np.testing.assert_allclose(other.numpy()[0], a, rtol=1e-6, atol=1e-6 * np.abs(a).max())
+
+
+def highpass_noise(noise, f_hp, fs, stages: int = 1) -> np.ndarray:
+    """``noise [..., N]`` through ``stages`` first-order high-passes at ``f_hp``
+    [Hz] (``scipy.signal.lfilter`` on the bilinear transform, I and Q alike),
+    run from a copy of the row before it so the window sees the settled
+    filter, as receiver noise behind an IF high-pass does."""
+    from scipy import signal
+
+    b, a = signal.butter(1, f_hp, "highpass", fs=fs)
+    n = noise.shape[-1]
+    x = np.concatenate([noise, noise], -1)
+    for _ in range(stages):
+        x = signal.lfilter(b, a, x, axis=-1)
+    return x[..., n:]

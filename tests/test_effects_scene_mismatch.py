@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers import highpass_noise
 
 from sionna_mmir.effects import EffectContext, EffectModel
 from sionna_mmir.effects.library import candidate_effects
@@ -260,6 +261,19 @@ def test_09_pose_and_object_delay_gradients_match_finite_differences(effect, ste
     assert max(err.values()) < 0.02
 
 
+def _behind_highpass(radar, ratio):
+    """``(f_hp, H [3], B)``: a first-order high-pass at the nearest target's
+    beat frequency over ``ratio``, its response at each target's beat
+    frequency (``scipy.signal.freqs``) and the targets' unit-gain ADC."""
+    from scipy import signal
+
+    centre = np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0)
+    f_b = 2 * np.linalg.norm(TARGETS - centre, axis=1) * radar.slope / SPEED_OF_LIGHT
+    f_hp = f_b.min() / ratio
+    _, H = signal.freqs([1.0, 0.0], [1.0, 2 * np.pi * f_hp], worN=2 * np.pi * f_b)
+    return f_hp, H, _adc(radar, TARGETS, np.ones(3))
+
+
 def test_11_if_filter_is_scored_with_the_object_gains_refitted_beside_it():
     """Three targets behind a first-order IF high-pass (corner 1.2 times
     under the nearest one's beat frequency; truth: ``scipy.signal.freqs``
@@ -267,17 +281,11 @@ def test_11_if_filter_is_scored_with_the_object_gains_refitted_beside_it():
     and phase; scored as the loop scores it (``_fit_candidate``), the filter
     refits them beside it (``refit_beside``) and gains over a third more
     per sample than held beside them at their fitted values."""
-    from scipy import signal
-
     from sionna_mmir.effects.library.if_filter import IFFilter
     from sionna_mmir.residual.ranking import _fit_candidate
 
     radar = _radar(chirps=4)
-    centre = np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0)
-    f_b = 2 * np.linalg.norm(TARGETS - centre, axis=1) * radar.slope / SPEED_OF_LIGHT
-    f_hp = f_b.min() / 1.2
-    _, H = signal.freqs([1.0, 0.0], [1.0, 2 * np.pi * f_hp], worN=2 * np.pi * f_b)
-    B = _adc(radar, TARGETS, np.ones(3))
+    f_hp, H, B = _behind_highpass(radar, 1.2)
     y = np.tensordot(H, B, axes=1) + _noise(B.shape[1:], 1e-3 * np.abs(B).max())
     m = _model(radar, y, _basis(radar, B, TARGETS))
     m.add(ObjectGain())
@@ -310,21 +318,12 @@ def test_11c_an_if_filter_starts_at_its_noise_notch_where_object_gains_took_its_
     and its fit finds the planted corners (to 20 %: the notch's shape at 8
     chirps of 12 channels identifies them to about 15 %; 0.82-1.16 of the
     planted corner over noise levels and seeds)."""
-    from scipy import signal
-
     from sionna_mmir.effects.library.if_filter import IFFilter
     from sionna_mmir.residual.ranking import _fit_candidate
 
     radar = _radar(chirps=8)
-    centre = np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0)
-    f_b = 2 * np.linalg.norm(TARGETS - centre, axis=1) * radar.slope / SPEED_OF_LIGHT
-    f_hp = f_b.min() / 5
-    _, H = signal.freqs([1.0, 0.0], [1.0, 2 * np.pi * f_hp], worN=2 * np.pi * f_b)
-    B = _adc(radar, TARGETS, np.ones(3))
-    n = _noise(B.shape[1:], 0.01 * np.abs(B).max())
-    b, a = signal.butter(1, f_hp, "highpass", fs=radar.sample_rate)
-    n = signal.lfilter(b, a, signal.lfilter(b, a, np.concatenate([n, n], -1), axis=-1),
-                       axis=-1)[..., B.shape[-1]:]
+    f_hp, H, B = _behind_highpass(radar, 5)
+    n = highpass_noise(_noise(B.shape[1:], 0.01 * np.abs(B).max()), f_hp, radar.sample_rate, 2)
     y = np.tensordot(H * H, B, axes=1) + n
     m = _model(radar, y, _basis(radar, B, TARGETS))
     m.add(ObjectGain())

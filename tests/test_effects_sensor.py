@@ -16,7 +16,8 @@ import pytest
 from numpy.polynomial import legendre
 from scipy import signal
 
-from helpers import direct_adc, nll_central_difference, point_target_delays, target_at
+from helpers import (direct_adc, highpass_noise, nll_central_difference, point_target_delays,
+                     target_at)
 from sionna_mmir.effects import EffectContext, EffectModel, ops
 from sionna_mmir.effects.library.adc_clipping import ADCClipping
 from sionna_mmir.effects.library.chirp_nonlinearity import ChirpNonlinearity
@@ -917,8 +918,7 @@ def _hp_noise_capture(rho, f_hp, num_chirps=16, seed=31, sigma=0.05):
     filtered = synthesize_adc(radar, IF_AMPS * H, tau)[None].astype(np.complex128)
     rng = np.random.default_rng(seed)
     pre = _noise(clean.shape, sigma * np.sqrt(rho), seed)
-    b, a = signal.butter(1, f_hp, "highpass", fs=radar.sample_rate)
-    pre = signal.lfilter(b, a, np.concatenate([pre, pre], axis=-1), axis=-1)[..., clean.shape[-1]:]
+    pre = highpass_noise(pre, f_hp, radar.sample_rate)
     post = _noise(clean.shape, sigma * np.sqrt(1 - rho), int(rng.integers(1 << 30)))
     return radar, clean, filtered + pre + post
 

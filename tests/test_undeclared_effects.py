@@ -15,7 +15,7 @@ import zlib
 import numpy as np
 import pytest
 
-from helpers import point_target_delays, target_at
+from helpers import highpass_noise, point_target_delays, target_at
 from sionna_mmir.effects import EffectContext, EffectModel
 from sionna_mmir.effects.library import default_library
 from sionna_mmir.fmcw.synthesize import synthesize_adc
@@ -105,25 +105,19 @@ def _chirp_nonlinearity(radar, clean, rng):
     return out[None]
 
 
+#: corner of the planted IF high-pass (:func:`_if_filter`, its receiver noise)
+IF_CORNER_HZ = 250e3
+
+
 def _if_filter(radar, clean, rng):
     # first-order high-pass in steady state: the analog filter runs long before the
     # ADC window opens, so each path's beat tone (frequency S tau) leaves it
     # multiplied by H at that frequency
-    fc = 250e3
+    fc = IF_CORNER_HZ
     a, tau, _ = _paths(radar, TARGETS)
     f = radar.slope * tau
     h = (1j * f / fc) / (1 + 1j * f / fc)
     return synthesize_adc(radar, a * h, tau)[None].astype(np.complex128)
-
-
-def _highpass_noise(radar, noise, fc=250e3):
-    """``noise`` through :func:`_if_filter`'s high-pass, run from the previous
-    chirp (``scipy.signal.lfilter`` on the bilinear transform)."""
-    from scipy import signal
-
-    b, a = signal.butter(1, fc, "highpass", fs=radar.sample_rate)
-    n = noise.shape[-1]
-    return signal.lfilter(b, a, np.concatenate([noise, noise], -1), axis=-1)[..., n:]
 
 
 def _adc_clipping(radar, clean, rng):
@@ -207,7 +201,7 @@ def test_01_single_effect_is_ranked_first_and_explained(truth):
     with_effect = SINGLE[truth](radar, clean, rng)
     noise = _noise(clean.shape, rng)
     if truth == "if_filter":                 # the receiver's thermal noise passes the filter
-        noise = _highpass_noise(radar, noise)
+        noise = highpass_noise(noise, IF_CORNER_HZ, radar.sample_rate)
     measured = with_effect + noise
     if truth == "adc_clipping":              # an ADC clips what reaches it, noise included
         measured = SINGLE[truth](radar, clean + noise, rng)
