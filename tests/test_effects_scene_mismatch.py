@@ -346,24 +346,11 @@ def test_11c_an_if_filter_starts_at_its_noise_notch_where_object_gains_took_its_
     assert 10 ** comp.values["log_fc"][0] * 1e3 < 0.01 * f_hp
 
 
-def test_11b_per_channel_delays_are_scored_with_the_base_refinement_refitted_beside_them():
-    """Three targets seen through per-Tx and per-Rx delays of several carrier
-    cycles (truth: exact per-pair delays plus the planted ones).  The base
-    refinement, fitted first as ``RadarModel.refine`` fits it (per-object
-    gains, then the pose), bends gains and pose to the scrambled channel
-    phases; scored on held-out channels as the loop scores candidates, delays
-    that refit that refinement beside them (``refit_beside``) predict the
-    held-out channels far better than delays held beside its bent values.
-    (Not the library's default: NOTES.md, "Per-channel errors and the base
-    refinement".)"""
-    from sionna_mmir.effects.library.delay_offset import DelayOffset
-    from sionna_mmir.effects.library.scene_mismatch import BASE_REFINEMENT
-    from sionna_mmir.residual.ranking import cv_folds, rank_candidates
-
-    radar = _radar(chirps=2)
+def _delayed_targets(radar, tx_ps, rx_ps):
+    """Three targets seen through per-Tx and per-Rx delays [ps] (exact
+    per-pair delays plus the planted ones) and thermal noise at -60 dB."""
     B = _adc(radar, TARGETS, np.array([1.0, 0.7, 0.5]))
-    tx_ps, rx_ps = np.array([-45.0, 11.0, -43.0]), np.array([-1.0, 6.0, 35.0, 4.0])
-    d = (tx_ps[:, None] + rx_ps[None, :]) * 1e-12
+    d = (np.asarray(tx_ps)[:, None] + np.asarray(rx_ps)[None, :]) * 1e-12
     tx, rx = radar.tx_positions, radar.rx_positions
     y = 0
     for p, g in zip(TARGETS, [1.0, 0.7, 0.5]):
@@ -371,21 +358,65 @@ def test_11b_per_channel_delays_are_scored_with_the_base_refinement_refitted_bes
         tau = tau / SPEED_OF_LIGHT + d
         a = np.full(tau.shape, g / np.linalg.norm(p) ** 2, complex)
         y = y + synthesize_adc(radar, a[..., None], tau[..., None]).astype(np.complex128)
-    y = y + _noise(B.shape[1:], 1e-3 * np.abs(B).max())
+    return B, y + _noise(B.shape[1:], 1e-3 * np.abs(B).max())
+
+
+def _refined(radar, B, y):
+    """The model on the targets' basis with the base refinement fitted as
+    ``RadarModel.refine`` fits it (per-object gains, then the pose)."""
+    from sionna_mmir.effects.library.scene_mismatch import BASE_REFINEMENT
+
     m = _model(radar, y, _basis(radar, B, TARGETS))
     for cls in BASE_REFINEMENT:
         m.add(cls())
         m.fit(maxiter=200)
+    return m
+
+
+def test_11b_per_channel_delays_are_scored_with_the_base_refinement_refitted_beside_them():
+    """Three targets seen through per-Tx and per-Rx delays of several carrier
+    cycles (truth: exact per-pair delays plus the planted ones).  The base
+    refinement, fitted first, bends gains and pose to the scrambled channel
+    phases; scored on held-out channels as the loop scores candidates, delays
+    that refit that refinement beside them predict the held-out channels far
+    better than delays held beside its bent values (the loop refits it only
+    while it is pinned: test 11d)."""
+    from sionna_mmir.effects.library.delay_offset import DelayOffset
+    from sionna_mmir.effects.library.scene_mismatch import BASE_REFINEMENT_NAMES
+    from sionna_mmir.residual.ranking import cv_folds, rank_candidates
+
+    radar = _radar(chirps=2)
+    m = _refined(radar, *_delayed_targets(radar, [-45.0, 11.0, -43.0], [-1.0, 6.0, 35.0, 4.0]))
     assert DelayOffset.refit_beside == ()
-    refinement = tuple(cls.name for cls in BASE_REFINEMENT)
     folds = cv_folds(m.ctx.shape[:4], 3)
     scores = {}
-    for beside in (refinement, ()):
+    for beside in (BASE_REFINEMENT_NAMES, ()):
         eff = DelayOffset()
-        eff.refit_beside = beside
+        eff.refit_beside, eff.channel_phase = beside, False
         (scores[beside],) = rank_candidates(m, [eff], folds)
-    new, held = scores[refinement], scores[()]
+    new, held = scores[BASE_REFINEMENT_NAMES], scores[()]
     # measured: -48.7 dB held-out energy change and 34 900 nats, against
     # -14.1 dB and 9 900 nats beside the bent refinement
     assert new.energy_change_db < -30.0 and held.energy_change_db > -25.0, (new, held)
     assert new.gain > 2.0 * held.gain > 0, (new, held)
+
+
+def test_11d_a_pinned_refinement_is_refitted_beside_per_channel_phase_candidates():
+    """While the refinement's pose sits on its bounds (it chased per-channel
+    delays of several carrier cycles), the ranking refits the refinement
+    beside a per-channel phase candidate (``refinement_pinned``,
+    ``Effect.channel_phase``) and scores the delays as test 11b's hand-made
+    refit; with delays small enough for the pose to stay inside its box,
+    nothing is refitted beside them.  Truth: exact per-pair delays."""
+    from sionna_mmir.effects.library.delay_offset import DelayOffset
+    from sionna_mmir.effects.library.scene_mismatch import refinement_pinned
+    from sionna_mmir.residual.ranking import cv_folds, rank_candidates
+
+    radar = _radar(chirps=2)
+    m = _refined(radar, *_delayed_targets(radar, [-45.0, 11.0, -43.0], [-1.0, 6.0, 35.0, 4.0]))
+    assert refinement_pinned(m), [c.values for c in m.components]
+    assert DelayOffset.channel_phase and not ObjectPattern.channel_phase
+    (score,) = rank_candidates(m, [DelayOffset()], cv_folds(m.ctx.shape[:4], 3))
+    assert score.energy_change_db < -30.0, score
+    small = _refined(radar, *_delayed_targets(radar, [-0.5, 0.2, -0.3], [0.1, 0.3, -0.2, 0.0]))
+    assert not refinement_pinned(small), [c.values for c in small.components]

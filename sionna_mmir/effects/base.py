@@ -123,6 +123,12 @@ class Effect:
     #: explains follows the signal's power across range, which the residual
     #: loop checks (:func:`~sionna_mmir.residual.ranking.outside_share`)
     every_path = False
+    #: its parameters set each channel's phase (a per-channel gain, delay or
+    #: frequency offset, the chirp's non-linearity): where the base
+    #: refinement ran into its bounds bending to those phases
+    #: (:func:`~sionna_mmir.effects.library.scene_mismatch.refinement_pinned`),
+    #: the residual loop refits that refinement beside it
+    channel_phase = False
     #: a property of the radar unit (same on every capture of it), not of the
     #: scene or the moment: calibrated once into a sensor profile
     #: (:mod:`sionna_mmir.effects.profile`), not cross-validated inside one frame

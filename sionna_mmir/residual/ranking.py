@@ -21,6 +21,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..effects.blockwise import fit_joint
 from ..effects.library._sensor_common import chirp_deviation
+from ..effects.library.scene_mismatch import BASE_REFINEMENT_NAMES, refinement_pinned
 from ..effects.model import EffectModel
 from .analysis import _db
 from .workers import SERIAL
@@ -288,12 +289,17 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     joint fit of every component (restored, a run's filter was lost).
     Components named in ``eff.refit_beside`` are fitted together with it
     throughout (an IF filter's attenuation of the nearest targets is what
-    the base fit's object gains took).  The adoption fits it the same way."""
+    the base fit's object gains took), and so is the base refinement beside
+    a per-channel phase effect while the refinement's pose is pinned at its
+    bounds (:func:`~sionna_mmir.effects.library.scene_mismatch.refinement_pinned`).
+    The adoption fits it the same way."""
     new = len(cand.components) - 1
     names = set(eff.may_replace)
     replaced = [c for c in cand.components[:new] if c.effect.name in names]
-    own = [new] + [i for i, c in enumerate(cand.components[:new])
-                   if c.effect.name in set(eff.refit_beside)]
+    beside = set(eff.refit_beside)
+    if eff.channel_phase and refinement_pinned(cand):
+        beside |= set(BASE_REFINEMENT_NAMES)
+    own = [new] + [i for i, c in enumerate(cand.components[:new]) if c.effect.name in beside]
     if not replaced:
         cand.fit(trainable=own, cells=train, maxiter=maxiter)
         return

@@ -47,6 +47,7 @@ class ChannelGain(Effect):
 
     name = "channel_gain"
     every_path = True
+    channel_phase = True
     kind = "mean"
     stage = 1
     per_unit = True

@@ -84,6 +84,7 @@ class ChirpNonlinearity(Effect):
 
     name = "chirp_nonlinearity"
     every_path = True
+    channel_phase = True
     kind = "mean"
     stage = 1
     per_unit = True

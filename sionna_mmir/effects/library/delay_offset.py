@@ -92,6 +92,7 @@ class DelayOffset(Effect):
 
     name = "delay_offset"
     every_path = True
+    channel_phase = True
     kind = "mean"
     stage = 1
     per_unit = True

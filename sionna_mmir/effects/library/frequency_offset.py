@@ -50,6 +50,7 @@ class FrequencyOffset(Effect):
 
     name = "frequency_offset"
     every_path = True
+    channel_phase = True
     kind = "mean"
     stage = 1
     per_unit = True
