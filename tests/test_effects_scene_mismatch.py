@@ -424,3 +424,43 @@ def test_11d_a_pinned_refinement_is_refitted_beside_per_channel_phase_candidates
     (held,) = rank_candidates(m, [DelayOffset()], folds)
     # measured: -48.7 dB refitted beside the pinned refinement, -14.9 dB held
     assert refitted.energy_change_db < -30.0 < held.energy_change_db, (refitted, held)
+
+
+@pytest.mark.parametrize("pinned", [True, False])
+def test_11e_a_phase_adoption_beside_a_pinned_refinement_has_a_second_start(pinned):
+    """An adoption whose joint refit beside the freed refinement ends worse
+    than its start (forced here by spoiling the nuisance gain after it) is
+    fitted again with the refinement held, and adopted when that start
+    lowers the residual; with the pose inside its box there is one start
+    and the adoption is undone.  Truth: exact per-pair delays."""
+    from sionna_mmir.effects.library.delay_offset import DelayOffset
+    from sionna_mmir.residual import diagnosis as dg
+
+    radar = _radar(chirps=2)
+    m = _refined(radar, *_delayed_targets(radar, [-45.0, 11.0, -43.0], [-1.0, 6.0, 35.0, 4.0]))
+    if not pinned:
+        pose = next(c for c in m.components if isinstance(c.effect, PoseOffset))
+        pose.values = {k: 0.9 * np.asarray(v) for k, v in pose.values.items()}
+    real_adopt, starts = dg._adopt, []
+
+    def first_start_lost(model, eff, maxiter, fits, clock=None, hold_refinement=False):
+        comp = real_adopt(model, eff, maxiter, fits, clock, hold_refinement=hold_refinement)
+        starts.append(hold_refinement)
+        if not hold_refinement:
+            model.nuisance.values["gain"] = model.nuisance.values["gain"] * 3.0
+        return comp
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(dg, "_adopt", first_start_lost)
+    try:
+        run = dg.DiagnosisRun(m, [DelayOffset()], workers=1)
+        first = run.first["residual_energy_db"]
+        a = run.step()
+    finally:
+        mp.undo()
+    if pinned:
+        assert starts == [False, True] and not run.vetoes
+        assert a.name == "delay_offset" and a.after["residual_energy_db"] < first - 10.0, a.after
+    else:
+        assert starts == [False] and a is None
+        assert [v["name"] for v in run.vetoes] == ["delay_offset"]

@@ -949,8 +949,8 @@ def test_21_an_adoption_whose_joint_refit_worsens_the_mean_is_undone():
     ctx, clean, y = _point_behind_gains()
     real_adopt, events = dg._adopt, []
 
-    def overshooting(model, eff, maxiter, fits, clock=None):
-        comp = real_adopt(model, eff, maxiter, fits)
+    def overshooting(model, eff, maxiter, fits, clock=None, **kw):
+        comp = real_adopt(model, eff, maxiter, fits, **kw)
         if eff.name == "missing_scatterer":          # force a worse mean
             model.nuisance.values["gain"] = model.nuisance.values["gain"] * 3.0
         return comp
@@ -1010,8 +1010,8 @@ def test_21b_an_adoption_whose_refit_needs_a_higher_floor_is_undone():
     refitted = []
     real_adopt = dg._adopt
 
-    def adopt(model, eff, maxiter, fits, clock=None):
-        comp = real_adopt(model, eff, maxiter, fits)
+    def adopt(model, eff, maxiter, fits, clock=None, **kw):
+        comp = real_adopt(model, eff, maxiter, fits, **kw)
         refitted.append(eff.name)
         return comp
 

@@ -197,7 +197,7 @@ def _timed(clock, stage: str):
             clock[stage] = clock.get(stage, 0.0) + time.perf_counter() - t0
 
 
-def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
+def _adopt(model, eff, maxiter, pool=SERIAL, clock=None, hold_refinement=False):
     """Add ``eff``, fit it as it was scored (:func:`~.ranking._fit_candidate`:
     alone beside the model, or from the silenced effects it may replace),
     then refit everything jointly (backfitting earlier effects after a mean
@@ -218,7 +218,10 @@ def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
     its own refit would wait for a kept trial and leave part of a
     chirp-varying residual to the next mover.  ``clock`` (a dict) collects
     the seconds of the stages (``joint``, ``backfit``, ``carry_back``).
-    Returns the new component."""
+    ``hold_refinement``: the candidate's own fit leaves the base refinement
+    where it is even while its pose is pinned (the second start of
+    :meth:`~.diagnosis.DiagnosisRun._adopt_or_undo`).  Returns the new
+    component."""
     static = _averaged_scoring(eff, model) and model.can_average()
     work = model.chirp_averaged(freeze=True) if static else model
     comp = work.add(copy.deepcopy(eff))
@@ -227,7 +230,7 @@ def _adopt(model, eff, maxiter, pool=SERIAL, clock=None):
             _fit_noise_model(work, comp, maxiter)
         return comp
     with _timed(clock, "joint"):
-        _fit_candidate(work, comp.effect, None, 2 * maxiter)         # as it was scored
+        _fit_candidate(work, comp.effect, None, 2 * maxiter, hold_refinement)  # as scored
         fit_joint(work, maxiter=2 * maxiter)
     if eff.kind != "variance":      # a noise model only reweights the mean fit
         with _timed(clock, "backfit"):

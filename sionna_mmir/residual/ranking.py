@@ -264,7 +264,7 @@ def chirp_memory(stats: list) -> tuple:
     return memory, MAX_CHIRP_MEMORY + 3.0 / np.sqrt(S * (C - 1))
 
 
-def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
+def _fit_candidate(cand: EffectModel, eff, train, maxiter: int, hold_refinement: bool = False) -> None:
     """Fit the candidate ``eff`` (the last component of ``cand``) on ``train``.
 
     An effect that may make adopted ones redundant (``eff.may_replace``, e.g.
@@ -291,13 +291,13 @@ def _fit_candidate(cand: EffectModel, eff, train, maxiter: int) -> None:
     throughout (an IF filter's attenuation of the nearest targets is what
     the base fit's object gains took), and so is the base refinement beside
     a per-channel phase effect while the refinement's pose is pinned at its
-    bounds (:func:`~sionna_mmir.effects.library.scene_mismatch.refinement_pinned`).
-    The adoption fits it the same way."""
+    bounds (:func:`~sionna_mmir.effects.library.scene_mismatch.refinement_pinned`),
+    unless ``hold_refinement``.  The adoption fits it the same way."""
     new = len(cand.components) - 1
     names = set(eff.may_replace)
     replaced = [c for c in cand.components[:new] if c.effect.name in names]
     beside = set(eff.refit_beside)
-    if eff.channel_phase and refinement_pinned(cand):
+    if eff.channel_phase and not hold_refinement and refinement_pinned(cand):
         beside |= set(BASE_REFINEMENT_NAMES)
     own = [new] + [i for i, c in enumerate(cand.components[:new]) if c.effect.name in beside]
     if not replaced:
