@@ -461,6 +461,7 @@ def test_11e_a_phase_adoption_beside_a_pinned_refinement_has_a_second_start(pinn
     if pinned:
         assert starts == [False, True] and not run.vetoes
         assert a.name == "delay_offset" and a.after["residual_energy_db"] < first - 10.0, a.after
+        assert a.starts == 2
     else:
         assert starts == [False] and a is None
         assert [v["name"] for v in run.vetoes] == ["delay_offset"]

@@ -14,7 +14,8 @@
     per adopted effect: ``name``, ``side`` (scene / sensor), ``verdict``,
     ``before``, ``after``, ``unexplained`` (the residual's excess over the
     noise floor after it), its parameters, the round's wall ``seconds``
-    (``rank``, ``adopt``) and the ranking that chose it (per candidate:
+    (``rank``, ``adopt``), ``starts`` (2 where the adoption's first fit was
+    undone and a second start kept) and the ranking that chose it (per candidate:
     held-out gain, score, ``energy_change_db``, the held-out residual energy
     change, and ``fit_s``, the seconds of its fold fits)
 ``unexplained``
@@ -73,7 +74,7 @@ def loop_document(loop) -> dict:
         adoptions.append({"name": a.name, "side": side, "verdict": _verdict(a, side),
                           "before": a.before, "after": a.after,
                           "unexplained": localise(model.ctx, a.residual_after),
-                          "params": a.params, "seconds": a.seconds,
+                          "params": a.params, "seconds": a.seconds, "starts": a.starts,
                           "candidates": [c.to_dict() for c in a.candidates]})
     mismatch = {"base_refinement": loop.scene_mismatch or {},
                 "final": loop.model.scene_mismatch(),

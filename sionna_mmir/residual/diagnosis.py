@@ -93,6 +93,9 @@ class Adoption:
     residual_after: np.ndarray = None
     #: wall seconds of the round: ``{"rank": ..., "adopt": ...}``
     seconds: dict = None
+    #: fits of the adoption: 2 where the first was undone and a second start
+    #: kept (:meth:`DiagnosisRun._adopt_or_undo`)
+    starts: int = 1
 
 
 @dataclasses.dataclass
@@ -199,7 +202,7 @@ class DiagnosisRun:
             eff = next(c for c in self.pool if c.name == best.name)
             before, res_before = self.current, self.model.residual()
             t0 = time.perf_counter()
-            comp = self._adopt_or_undo(eff, best, secs)
+            comp, starts = self._adopt_or_undo(eff, best, secs)
             secs["adopt"] += time.perf_counter() - t0
             if comp is not None:
                 break
@@ -208,7 +211,7 @@ class DiagnosisRun:
                      after=self.current, params=comp.effect.summary(comp.values, self.model.ctx),
                      residual_before=res_before.astype(np.complex64),
                      residual_after=self.model.residual().astype(np.complex64),
-                     seconds={k: round(v, 2) for k, v in secs.items()})
+                     seconds={k: round(v, 2) for k, v in secs.items()}, starts=starts)
         self.adoptions.append(a)
         if not getattr(eff, "repeatable", False):
             self.pool = [c for c in self.pool if c is not eff]
@@ -231,15 +234,16 @@ class DiagnosisRun:
         the pose on its bounds beside 28 delays is a larger, less settled fit,
         on the suite's cascade delay run one of five refits after the same
         first adoption ended 1.3 dB above its start (the others 2.4 dB below).
-        ``clock`` collects the adoption's stage seconds (``adopt_joint``, ...)."""
+        ``clock`` collects the adoption's stage seconds (``adopt_joint``, ...).
+        Returns ``(component or None, starts made)``."""
         before, saved = self.current, self.model.copy()
         starts = [False]
         if eff.channel_phase and refinement_pinned(self.model):
             starts.append(True)
-        for hold in starts:
+        for k, hold in enumerate(starts):
             comp, why = self._adopt_once(eff, score, before, clock, hold)
             if why is None:
-                return comp
+                return comp, k + 1
             self.model.components, self.model.nuisance = saved.components, saved.nuisance
             saved = self.model.copy()
             self.current = before
@@ -248,7 +252,7 @@ class DiagnosisRun:
         self.vetoes.append({"round": len(self.adoptions), "name": eff.name, **why})
         if self.progress is not None:
             self.progress("vetoed", eff.name)
-        return None
+        return None, len(starts)
 
     def _adopt_once(self, eff, score, before, clock, hold):
         """One start of :meth:`_adopt_or_undo`: ``(component, None)``, or
