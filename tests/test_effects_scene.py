@@ -215,6 +215,33 @@ def test_03c_coupling_spread_passes_through_later_noise_shapers():
     assert np.allclose(v, expected, rtol=2e-3, atol=1e-6 * sigma2)
 
 
+def test_03d_shaped_energy_is_the_squared_error_in_units_of_the_shaped_noise():
+    """``sum |Y - X|^2 / s`` (unitary DFT): the plain squared error without a
+    noise shaper (Parseval), divided bin by bin by the IF filter's power gain
+    on the floor behind one, and by a given shape when one is passed."""
+    from sionna_mmir.effects.library.if_filter import IFFilter
+
+    radar = RadarConfig.awr1843(num_chirps=2, num_samples=64)
+    ctx = EffectContext(radar)
+    rng = np.random.default_rng(9)
+    clean = _scene(radar)[None]
+    m = EffectModel(ctx, clean + _noise(clean.shape, rng), 0.9 * clean)
+    assert m.shaped_energy() == pytest.approx(m.residual_energy(), rel=1e-9)
+    cells = np.zeros(ctx.shape[:4], bool)
+    cells[:, 0] = True
+    assert m.shaped_energy(cells) == pytest.approx(m.residual_energy(cells), rel=1e-9)
+    f = m.add(IFFilter())
+    f.values["log_fc"] = np.log10([500.0, f.specs["log_fc"].upper[1]])   # 500 kHz high-pass
+    f.values["pre_noise"] = np.ones(1)                                    # all of the floor
+    s = m.white_shape_numpy()
+    assert s.min() < 0.5                           # the high-pass quietens the low bins
+    x = m.mean_variance_numpy()[0]
+    r2 = np.abs(m.Y_numpy - np.fft.fft(x, axis=-1, norm="ortho")) ** 2
+    assert m.shaped_energy() == pytest.approx(float(np.sum(r2 / s)), rel=1e-6)
+    assert m.shaped_energy(shape=np.ones(ctx.shape)) == pytest.approx(m.residual_energy(),
+                                                                       rel=1e-6)
+
+
 def test_04_coupling_bad_arguments_raise_config_error():
     with pytest.raises(ConfigError, match="num_paths"):
         Coupling(num_paths=0)

@@ -642,6 +642,19 @@ class EffectModel:
         r = self.y - self.mean_variance_numpy()[0]
         return float(np.sum(np.abs(r if cells is None else r[np.asarray(cells, bool)]) ** 2))
 
+    def shaped_energy(self, cells=None, shape=None) -> float:
+        """``sum |Y - X|^2 / s`` over ``cells`` (None: all), normalised units:
+        the mean model's squared error in units of the receiver noise the
+        adopted noise shapers leave in each range bin, ``s`` their power gain
+        on the white floor (:meth:`white_shape_numpy`, or ``shape`` given, e.g.
+        the model's before a candidate was added).  Without a shaper ``s = 1``
+        and it is :meth:`residual_energy` (Parseval)."""
+        x = self.mean_variance_numpy()[0]
+        s = self.white_shape_numpy() if shape is None else np.asarray(shape)
+        keep = (slice(None),) * 4 if cells is None else np.asarray(cells, bool)
+        r2 = np.abs(self.Y_numpy[keep] - np.fft.fft(x[keep], axis=-1, norm="ortho")) ** 2
+        return float(np.sum(r2 / np.maximum(np.broadcast_to(s, self.ctx.shape)[keep], 1e-12)))
+
     def energy_by_bin(self, cells=None) -> tuple:
         """``(residual, model)``: ``sum |Y - X|^2`` and ``sum |X|^2`` per range
         bin (unitary DFT) over ``cells`` (None: all), ``[N]`` each, normalised

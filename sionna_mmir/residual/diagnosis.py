@@ -237,13 +237,17 @@ class DiagnosisRun:
         ``clock`` collects the adoption's stage seconds (``adopt_joint``, ...).
         Returns ``(component or None, starts made)``."""
         before, saved = self.current, self.model.copy()
+        shape = self.model.white_shape_numpy()
+        ref = (shape, self.model.shaped_energy(shape=shape))
         starts = [False]
         if eff.channel_phase and refinement_pinned(self.model):
             starts.append(True)
         for k, hold in enumerate(starts):
-            comp, why = self._adopt_once(eff, score, before, clock, hold)
+            comp, why = self._adopt_once(eff, score, ref, clock, hold)
             if why is None:
                 return comp, k + 1
+            why = {"residual_energy_db": [before["residual_energy_db"],
+                                          self.current["residual_energy_db"]], **why}
             self.model.components, self.model.nuisance = saved.components, saved.nuisance
             saved = self.model.copy()
             self.current = before
@@ -254,9 +258,12 @@ class DiagnosisRun:
             self.progress("vetoed", eff.name)
         return None, len(starts)
 
-    def _adopt_once(self, eff, score, before, clock, hold):
+    def _adopt_once(self, eff, score, ref, clock, hold):
         """One start of :meth:`_adopt_or_undo`: ``(component, None)``, or
-        ``(component, why)`` when the adoption is to be undone."""
+        ``(component, why)`` when the adoption is to be undone.  ``ref``: the
+        noise shape and shaped residual energy before the adoption
+        (:meth:`~sionna_mmir.effects.model.EffectModel.shaped_energy`), which
+        the mean model's rise is measured in."""
         stages = {}
         comp = _adopt(self.model, eff, self.maxiter, self.fits, stages, hold_refinement=hold)
         if clock is not None:
@@ -264,10 +271,9 @@ class DiagnosisRun:
                 clock["adopt_" + k] = clock.get("adopt_" + k, 0.0) + v
         self.current = _current_metrics(self.model)
         floor = float(comp.effect.fitted_gain_floor(self.model, comp.values))
-        if _mean_worse(eff, before, self.current):
-            return comp, {"residual_energy_db": [before["residual_energy_db"],
-                                                 self.current["residual_energy_db"]],
-                          "starts": 2 if hold else 1}
+        rise = 10.0 * np.log10(self.model.shaped_energy(shape=ref[0]) / ref[1])
+        if _mean_worse(eff, rise):
+            return comp, {"shaped_rise_db": rise, "starts": 2 if hold else 1}
         if score.gain_per_sample < floor:
             return comp, {"gain_floor": [score.gain_per_sample, floor]}
         return comp, None

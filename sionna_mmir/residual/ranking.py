@@ -39,9 +39,12 @@ class CandidateScore:
     fold_gains: list
     #: share of the transmit slots (frame, Tx, chirp) whose held-out NLL the candidate lowers
     slot_share: float = 1.0
-    #: change of the held-out residual energy ``sum |Y - X|^2`` [dB] (mean-kind
-    #: candidates; 0 for variance effects, which do not predict the mean); a
-    #: mean-only candidate (:func:`_mean_only`) is acceptable only when it is <= 0
+    #: change of the held-out residual energy ``sum |Y - X|^2 / s`` [dB], ``s``
+    #: the noise shape of the model without the candidate (1 without an adopted
+    #: IF filter: :meth:`~sionna_mmir.effects.model.EffectModel.shaped_energy`;
+    #: mean-kind candidates; 0 for variance effects, which do not predict the
+    #: mean); a mean-only candidate (:func:`_mean_only`) is acceptable only
+    #: when it is <= 0
     energy_change_db: float = 0.0
     #: lag-1 chirp correlation of the held-out scatter a variance effect
     #: claims, and the most an acceptable one may show (:func:`chirp_memory`;
@@ -137,7 +140,7 @@ def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple
                                          deviation=_slot_deviation(model.ctx.shape[3] > 1))[1]
     if "energy" in needs:
         out["bins"], out["power"] = base.energy_by_bin(test)
-        out["energy"] = float(out["bins"].sum())          # Parseval: sum |y - x|^2
+        out["energy"] = base.shaped_energy(test)
     if "split" in needs:
         out["split"] = base.nll_profiled(test, split=True) * n_test
     return base.nuisance.values, out
@@ -380,6 +383,7 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool,
     ranking needs from its held-out cells (``"key"``: ``(g, k, i)``)."""
     t0 = time.perf_counter()
     train, base = shared[g][k]
+    shape = None if eff.kind == "variance" else base.white_shape_numpy()
     cand = base.copy()
     cand.add(copy.deepcopy(eff), cells=train)          # fresh state per fold
     if deviation:              # a noise model, fitted to the scatter it is scored on
@@ -399,7 +403,7 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool,
         out["memory"] = memory_stats(cand.y - x, _claimed(cand, x, v, v - white), ~train)
     else:
         out["bins"] = cand.energy_by_bin(~train)[0]
-        out["energy"] = float(out["bins"].sum())          # Parseval: sum |y - x|^2
+        out["energy"] = cand.shaped_energy(~train, shape)     # in the base's noise units
     if out["split"]:
         out["noise_nll"] = cand.nll_profiled(~train, deviation=True)
     out["s"] = time.perf_counter() - t0
