@@ -220,7 +220,7 @@ class DiagnosisRun:
         return a
 
     def _adopt_or_undo(self, eff, score, clock=None):
-        """Adopt ``eff`` (:func:`~.adoption._adopt`); undo it and return None when the
+        """Adopt ``eff`` (:func:`~.adoption._adopt`); undo it (no component) when the
         joint refit made the mean model worse (:func:`~.adoption._mean_worse`)
         or showed it to need a higher gain floor than its held-out gain per
         sample (``score``, its :class:`~.ranking.CandidateScore`): a mover
@@ -231,7 +231,7 @@ class DiagnosisRun:
         A per-channel phase effect fitted beside a pinned base refinement
         (:func:`~.ranking._fit_candidate`) has a second start, with the
         refinement held, when the first made the mean model worse: freeing
-        the pose on its bounds beside 28 delays is a larger, less settled fit,
+        the pose on its bounds beside 28 delays is a larger, less settled fit:
         on the suite's cascade delay run one of five refits after the same
         first adoption ended 1.3 dB above its start (the others 2.4 dB below).
         ``clock`` collects the adoption's stage seconds (``adopt_joint``, ...).
