@@ -649,21 +649,22 @@ class EffectModel:
         on the white floor (:meth:`white_shape_numpy`, or ``shape`` given, e.g.
         the model's before a candidate was added).  Without a shaper ``s = 1``
         and it is :meth:`residual_energy` (Parseval)."""
+        return self.energy_by_bin(cells, shape)[2]
+
+    def energy_by_bin(self, cells=None, shape=None) -> tuple:
+        """``(residual, model, shaped)``: ``sum |Y - X|^2`` and ``sum |X|^2`` per
+        range bin (unitary DFT) over ``cells`` (None: all), ``[N]`` each,
+        normalised units: where in range the mean model misses and where its
+        power is; and the residual's :meth:`shaped_energy` (``shape`` as there),
+        from the same evaluation of the model."""
         x = self.mean_variance_numpy()[0]
         s = self.white_shape_numpy() if shape is None else np.asarray(shape)
         keep = (slice(None),) * 4 if cells is None else np.asarray(cells, bool)
-        r2 = np.abs(self.Y_numpy[keep] - np.fft.fft(x[keep], axis=-1, norm="ortho")) ** 2
-        return float(np.sum(r2 / np.maximum(np.broadcast_to(s, self.ctx.shape)[keep], 1e-12)))
-
-    def energy_by_bin(self, cells=None) -> tuple:
-        """``(residual, model)``: ``sum |Y - X|^2`` and ``sum |X|^2`` per range
-        bin (unitary DFT) over ``cells`` (None: all), ``[N]`` each, normalised
-        units: where in range the mean model misses and where its power is."""
-        x = self.mean_variance_numpy()[0]
-        keep = (slice(None),) * 4 if cells is None else np.asarray(cells, bool)
         X = np.fft.fft(x[keep], axis=-1, norm="ortho")
-        return (np.sum(np.abs(self.Y_numpy[keep] - X) ** 2, axis=tuple(range(X.ndim - 1))),
-                np.sum(np.abs(X) ** 2, axis=tuple(range(X.ndim - 1))))
+        r2 = np.abs(self.Y_numpy[keep] - X) ** 2
+        cellwise = tuple(range(X.ndim - 1))
+        shaped = np.sum(r2 / np.maximum(np.broadcast_to(s, self.ctx.shape)[keep], 1e-12))
+        return np.sum(r2, axis=cellwise), np.sum(np.abs(X) ** 2, axis=cellwise), float(shaped)
 
     # ---------------------------------------------------------------- loss
     def mask_tensor(self, cells=None):

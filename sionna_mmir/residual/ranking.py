@@ -139,8 +139,7 @@ def _fold_base_task(shared, g: int, k: int, maxiter: int, needs: tuple) -> tuple
         out["slots"] = base.nll_profiled(test, True, by_slot=True,
                                          deviation=_slot_deviation(model.ctx.shape[3] > 1))[1]
     if "energy" in needs:
-        out["bins"], out["power"] = base.energy_by_bin(test)
-        out["energy"] = base.shaped_energy(test)
+        out["bins"], out["power"], out["energy"] = base.energy_by_bin(test)
     if "split" in needs:
         out["split"] = base.nll_profiled(test, split=True) * n_test
     return base.nuisance.values, out
@@ -408,8 +407,7 @@ def _candidate_task(shared, g: int, k: int, eff, maxiter: int, deviation: bool,
         white = float(np.exp(cand.nuisance.values["log_noise"][0]))
         out["memory"] = memory_stats(cand.y - x, _claimed(cand, x, v, v - white), ~train)
     else:
-        out["bins"] = cand.energy_by_bin(~train)[0]
-        out["energy"] = cand.shaped_energy(~train, shape)     # in the base's noise units
+        out["bins"], _, out["energy"] = cand.energy_by_bin(~train, shape)  # base's noise units
     if out["split"]:
         out["noise_nll"] = cand.nll_profiled(~train, deviation=True)
     out["s"] = time.perf_counter() - t0
