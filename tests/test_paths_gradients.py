@@ -125,9 +125,11 @@ def check(h: Harness, owner, key, index, step, sync=True):
     return ad, (vals[0] - vals[1]) / (2 * step)
 
 
-def check_fit(h: Harness, owner, key, index, step, n=9):
-    """``(ad, fd)`` as :func:`check`, ``fd`` the slope at 0 of a cubic fitted
-    to ``n`` evaluations over ``[-step, step]``."""
+def check_fit(h: Harness, owner, key, index, step, n=17):
+    """``(ad, fd, se)`` as :func:`check`, ``fd`` the slope at 0 of a cubic
+    fitted to ``n`` evaluations over ``[-step, step]`` and ``se`` its
+    standard error from the fit's residuals (the float32 noise of the
+    objective)."""
     ad, _ = check(h, owner, key, index, step / 4)
     base_t = getattr(owner, key)
     base = np.array(base_t, dtype=np.float64)
@@ -141,12 +143,17 @@ def check_fit(h: Harness, owner, key, index, step, n=9):
         vals.append(float(np.asarray(h())[0]))
     _set(owner, key, base_t)
     h.scene.sync()
-    return ad, float(np.polyfit(steps, vals, 3)[-2])
+    coef, cov = np.polyfit(steps, vals, 3, cov=True)
+    return ad, float(coef[-2]), float(np.sqrt(cov[-2, -2]))
 
 
-def _assert_close(ad, fd, what):
+def _assert_close(ad, fd, what, se=0.0):
+    """``|AD - FD| <= max(RTOL |FD|, 3 se)`` (``se``: the FD's standard error
+    where it is fitted, :func:`check_fit`)."""
     assert np.isfinite(ad) and np.isfinite(fd) and fd != 0, (what, ad, fd)
-    assert abs(ad - fd) <= RTOL * abs(fd), f"{what}: AD {ad:.6e} vs FD {fd:.6e}"
+    tol = max(RTOL * abs(fd), 3.0 * se)
+    assert abs(ad - fd) <= tol, f"{what}: AD {ad:.6e} vs FD {fd:.6e} (+- {se:.1e})"
+    assert tol <= 0.1 * abs(fd), f"{what}: FD too noisy to test ({se:.1e} of {fd:.6e})"
 
 
 def _centre_vertex(obj, near):
@@ -290,8 +297,9 @@ def test_11_facet_image_chain_gradients():
     (floor -> wall chains: the floor's), so the floor's normals and vertex
     heights move the ADC phase through the unfolded chain (AD vs finite
     differences).  The normal's derivative is weak against the float32 noise
-    of the ADC sum, so its finite difference is the slope of a cubic fitted
-    over nine steps."""
+    of the ADC sum (its two-point differences scatter by ~10 %, and by the
+    CPU's vector width), so its finite difference is the slope of a cubic
+    fitted over 17 steps, compared within three of its standard errors."""
     floor = trimesh.Trimesh(np.array([[0.5, -1, -0.4], [3, -1, -0.4], [3, 1, -0.4], [0.5, 1, -0.4]]),
                             [[0, 2, 1], [0, 3, 2]], process=False).subdivide().subdivide()
     metal = np.array([1.0, 1e6, 1e-5, 1e-2, 0.9, 0.01], np.float32)
@@ -302,8 +310,8 @@ def test_11_facet_image_chain_gradients():
     assert np.any(p.depth == 2)                              # chains exist
     floor_obj = sc.mesh_objects["floor"]
     fv = _centre_vertex(floor_obj, [1.75, 0.0, -0.4])
-    ad, fd = check_fit(h, floor_obj, "vertex_normals", (fv, 1), 0.02)
-    _assert_close(ad, fd, "floor vertex_normals[1] (facets, depth 2)")
+    ad, fd, se = check_fit(h, floor_obj, "vertex_normals", (fv, 1), 0.08)
+    _assert_close(ad, fd, "floor vertex_normals[1] (facets, depth 2)", se)
     ad, fd = check(h, floor_obj, "vertex_positions", (fv, 2), 2e-5)
     _assert_close(ad, fd, "floor vertex_positions[2] (facets, depth 2)")
     wall = sc.mesh_objects["wall"]

@@ -94,6 +94,10 @@ def test_gradient_of_the_radius_matches_retraced_fd():
     """d(power)/d(scale) of a sphere scaled about its centre: AD (IFT through
     the walk, the curvature term) vs central FD of two re-traced calls and
     the closed form ``P ~ a^2 / (R^2 (R + a)^2)`` (``R + a`` fixed).  The
+    re-traced power of the faceted sphere moves by a few per cent from one
+    scale to the next (two-point differences scatter by ~+-40 % at 1-5 %
+    steps), so the FD is the slope of a cubic through eleven calls over
+    +-20 %, compared within 10 % or three of its standard errors.  The
     facet quadrature seeds the walks (deterministic weights ``1 / c``: the
     Bernoulli draws of random seeds would add their own noise to a
     difference of two calls)."""
@@ -125,12 +129,14 @@ def test_gradient_of_the_radius_matches_retraced_fd():
         return float(dr.grad(s)[0])
 
     ad = power(1.0, grad=True)
-    h = 0.05
     p0 = power(1.0)
-    fd = (power(1.0 + h) - power(1.0 - h)) / (2 * h)
+    steps = np.linspace(-0.2, 0.2, 11)
+    coef, cov = np.polyfit(steps, [power(1.0 + h) for h in steps], 3, cov=True)
+    fd, se = coef[-2], np.sqrt(cov[-2, -2])
     closed = p0 * (2.0 + 2.0 * a / R)            # d ln P / ds = 2 / s + 2 a / R
     assert np.sign(ad) == np.sign(fd)
-    assert abs(ad - fd) < 0.1 * abs(fd)
+    assert abs(ad - fd) < max(0.1 * abs(fd), 3 * se), (ad, fd, se)
+    assert 3 * se < 0.2 * abs(fd), (fd, se)      # the re-traced slope is informative
     assert abs(ad - closed) < 0.05 * abs(closed)
 
 
