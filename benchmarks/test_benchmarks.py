@@ -63,3 +63,15 @@ def test_bench_sms_fsd_cost():
     res = bench_sms_fsd.measure()
     print("\n" + res["markdown"])
     assert all(t > 0 for t in res["seconds"].values())
+
+
+@pytest.mark.benchmark
+def test_bench_effects_evaluation():
+    """One loss-and-gradient evaluation of the effect model, basis kept per
+    chirp loop vs the full-size reference twin (timings printed)."""
+    import bench_effects_eval
+
+    res = bench_effects_eval.run(repeat=3)
+    print("\n" + bench_effects_eval.to_markdown(res))
+    assert res["kept_s"] > 0 and res["full_s"] > 0
+    assert res["grad_rel_diff"] < 1e-4
