@@ -4,7 +4,8 @@ The loop's joint refits and candidate fits beside a chirp-varying effect
 (ego motion, a mover) evaluate the whole model on every chirp loop at every
 L-BFGS-B step.  This times that evaluation (``EffectModel.loss`` and its
 gradient in every parameter, as ``EffectModel.fit`` runs it) on a
-cascade-sized capture, 12 Tx x 16 Rx x 16 chirps x 256 samples, with nine
+cascade-sized capture, 12 Tx x 16 Rx x 16 chirps x 256 samples (or an
+AWR1843's, 3 x 4 x 8 x 128), with nine
 point-target objects as the per-object basis, their object gains, a pose
 offset, a mover and ego motion, for:
 
@@ -15,7 +16,8 @@ offset, a mover and ego motion, for:
 
 Both in the same run on the same model; the NLL and gradients are compared.
 
-Run:  python benchmarks/bench_effects_eval.py [--repeat 5] [--json out.json]
+Run:  python benchmarks/bench_effects_eval.py [--repeat 5] [--radar cascade|awr1843]
+      [--json out.json]
 """
 from __future__ import annotations
 
@@ -49,14 +51,18 @@ def _adc(radar, points, gains):
     return np.stack(out)
 
 
-def build(seed=0):
-    """The benchmark's model: cascade radar, nine objects, four effects."""
+RADARS = {"cascade": lambda: RadarConfig.mmwcas(num_chirps=16),
+          "awr1843": lambda: RadarConfig.awr1843(num_chirps=8)}
+
+
+def build(seed=0, radar="cascade"):
+    """The benchmark's model: the radar (``RADARS``), nine objects, four effects."""
     from sionna_mmir.effects.library.ego_motion import EgoMotion
     from sionna_mmir.effects.library.moving_scatterer import MovingScatterer
     from sionna_mmir.effects.library.scene_mismatch import ObjectGain, PoseOffset
 
     rng = np.random.default_rng(seed)
-    radar = RadarConfig.mmwcas(num_chirps=16)
+    radar = RADARS[radar]()
     pts = _targets(rng)
     B = _adc(radar, pts, np.ones(len(pts)))
     centre = np.concatenate([radar.tx_positions, radar.rx_positions]).mean(axis=0)
@@ -106,8 +112,8 @@ def evaluate(model, repeat):
     return ops.item(loss), g, times[1:]
 
 
-def run(repeat=5, seed=0):
-    m = build(seed)
+def run(repeat=5, seed=0, radar="cascade"):
+    m = build(seed, radar)
     lk, gk, tk = evaluate(m, repeat)
     lf, gf, tf = evaluate(full_twin(m), repeat)
     return {"shape": list(m.ctx.shape), "objects": len(m.basis_t),
@@ -132,9 +138,10 @@ def to_markdown(res) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--repeat", type=int, default=5)
+    p.add_argument("--radar", default="cascade", choices=sorted(RADARS))
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
-    res = run(a.repeat)
+    res = run(a.repeat, radar=a.radar)
     print(to_markdown(res))
     if a.json:
         with open(a.json, "w") as f:
