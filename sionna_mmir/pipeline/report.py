@@ -46,9 +46,11 @@ from ..residual.report import METRICS, write_figures
 
 
 def _verdict(adoption, side: str) -> str:
-    """One line on why the adopted effect won its round."""
+    """One line on why the adopted effect won its round: its own held-out
+    score (not necessarily the round's highest: a candidate that failed an
+    acceptance rule may have scored more) and the best of the other side."""
     ranks = adoption.candidates
-    best = ranks[0] if ranks else None
+    best = next((c for c in ranks if c.name == adoption.name), ranks[0] if ranks else None)
     other = [c for c in ranks if c.name != adoption.name and
              (c.name in _SCENE) != (side == "scene")]
     margin = "" if not other else (f"; best {'sensor' if side == 'scene' else 'scene-side'} "
