@@ -205,7 +205,8 @@ def _reproduce_line(args) -> str:
         f" --{k} {v}" for k, v in (("subset", args.subset), ("chirps", args.chirps),
                                     ("radar", args.radar), ("slope", args.slope),
                                     ("sample-rate", args.sample_rate),
-                                    ("samples", args.samples)) if v is not None)
+                                    ("samples", args.samples),
+                                    ("seed", args.seed or None)) if v is not None)
     return f"Reproduce: `.venv/bin/python {cmd}`"
 
 
