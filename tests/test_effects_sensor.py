@@ -21,6 +21,7 @@ from helpers import (direct_adc, highpass_noise, nll_central_difference, point_t
 from sionna_mmir.effects import EffectContext, EffectModel, ops
 from sionna_mmir.effects.library.adc_clipping import ADCClipping
 from sionna_mmir.effects.library.chirp_nonlinearity import ChirpNonlinearity
+from sionna_mmir.effects.library.coupling import Coupling, coupling_signal
 from sionna_mmir.effects.library.delay_offset import DelayOffset
 from sionna_mmir.effects.library.frequency_offset import FrequencyOffset
 from sionna_mmir.effects.library.if_filter import IFFilter, response_numpy
@@ -29,7 +30,7 @@ from sionna_mmir.effects.library.noise_floor import NoiseFloor
 from sionna_mmir.effects.library.phase_noise import PhaseNoise
 from sionna_mmir.errors import ConfigError
 from sionna_mmir.fmcw.synthesize import synthesize_adc
-from sionna_mmir.radar.config import RadarConfig
+from sionna_mmir.radar.config import SPEED_OF_LIGHT, RadarConfig
 
 dr, mi = ops.dr, ops.mi
 C = 299_792_458.0
@@ -589,6 +590,53 @@ def test_17_if_filter_attenuates_tones_by_closed_form():
         out = ops.to_numpy(IFFilter(extension=ext).apply(ops.tensor(clean), _if_params(), ctx))
         errs.append(np.linalg.norm(out - steady) / np.linalg.norm(steady))
     assert errs[0] < 3e-3 < 0.03 < errs[1]
+
+
+def _leaky_if_capture(leak_range, amp):
+    """Three targets and a Tx->Rx leakage tone at ``leak_range`` through the
+    planted filter, each tone in its closed-form steady state; the leakage's
+    Coupling values (one path, amplitude ``amp``, capture units)."""
+    radar, tau, clean = _scene(ranges=IF_RANGES[2:], azimuths=IF_AZ[2:], amps=IF_AMPS[2:])
+    ctx = EffectContext(radar)
+    steady = synthesize_adc(radar, IF_AMPS[2:] * _analog_response(radar.slope * tau), tau)[None]
+    tl = 2 * leak_range / SPEED_OF_LIGHT
+    a = amp * np.exp(2j * np.pi * radar.center_frequency * tl)
+    values = {"delay": np.array([tl / 1e-9]), "amp": np.array([[a.real, a.imag]]),
+              "tx": np.tile([1.0, 0.0], (radar.num_tx, 1)),
+              "rx": np.tile([1.0, 0.0], (radar.num_rx, 1))}
+    leak = coupling_signal(values, ctx)[None, :, :, None, :]
+    truth = steady.astype(np.complex128) + _analog_response(radar.slope * tl) * leak
+    return ctx, clean, truth, values
+
+
+def _in_units(values, m):
+    return {**values, "amp": values["amp"] / m.scale}
+
+
+@pytest.mark.parametrize("leak_range", [0.12, 0.3])
+def test_17c_filter_beside_a_leakage_added_in_either_order(leak_range):
+    """The row predictor of an IF filter is renewed when a leakage joins the
+    model (after the filter, or before it as an adopted effect the filter may
+    replace): the model then matches the closed-form steady state of every
+    tone (truth: scipy's analog responses), where a predictor frozen on the
+    targets alone continued the leakage's tone wrongly (9-34 % error)."""
+    ctx, clean, truth, leak = _leaky_if_capture(leak_range, 10.0)
+    corners = np.log10([F_HP / 1e3, F_LP / 1e3])
+    for order in ("filter first", "leakage first"):
+        m = EffectModel(ctx, truth, clean)
+        m.nuisance.values["gain"] = np.array([(1 / m.base_gain).real, (1 / m.base_gain).imag])
+        effects = [IFFilter(highpass_stages=1, transient=False), Coupling(num_paths=1)]
+        for eff in effects if order == "filter first" else effects[::-1]:
+            comp = m.add(eff)
+            if eff.name == "coupling":
+                comp.values.update(_in_units(leak, m))
+            else:
+                comp.values["log_fc"] = corners
+        filt = next(c.effect for c in m.components if c.effect.name == "if_filter")
+        assert filt.extension.matrix is not None, order
+        out = m.mean_adc()
+        err = np.linalg.norm(out - truth) / np.linalg.norm(truth)
+        assert err < 0.01, (order, err)
 
 
 def test_18_if_filter_recovered():

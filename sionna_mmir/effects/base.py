@@ -137,6 +137,18 @@ class Effect:
     #: (nats per held-out sample; :meth:`gain_floor`)
     min_gain_per_sample = 0.0
 
+    #: keeps a linear predictor frozen on the mean model (the row extension
+    #: of a spectral operator), renewed by :meth:`refreeze`
+    frozen_on_model = False
+
+    def refreeze(self, model: np.ndarray) -> None:
+        """Renew what the effect froze on the mean model, on ``model`` (complex
+        ``[F, T, R, C, N]``, normalised units, every component in): an
+        effect added after it (a leakage's near-DC tones) brings tones that
+        a row predictor frozen without them continues badly, and a filter's
+        output at the window's edges goes wrong with it.  Nothing to renew
+        by default."""
+
     def held_state(self):
         """A context in which the effect keeps whatever it derives from its
         input (ego motion's geometry) fixed at what it first derives there,

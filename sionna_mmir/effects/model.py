@@ -24,6 +24,7 @@ O(1) whatever the capture's units.
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import functools
 
@@ -152,7 +153,28 @@ class EffectModel:
         comp = Component(effect=effect, specs=specs,
                          values={k: s.init.copy() for k, s in specs.items()})
         self.components.append(comp)
+        self._refreeze(comp)
         return comp
+
+    def _refreeze(self, new: Component) -> None:
+        """Renew the predictors frozen on the mean model
+        (:meth:`~.base.Effect.refreeze`) on the model with ``new`` in, at
+        its initial values: ``new``'s own (its start saw the model without
+        the components it may replace) and the earlier components' (frozen
+        before ``new``'s tones were there).  The model they are renewed on
+        leaves the holders out: their operators keep the tones' frequencies,
+        and their output at the window's edges is what a stale predictor
+        spoils (a predictor fitted to it was unstable in the tests).  An
+        earlier component's effect is copied first: copies of a model share
+        their effects."""
+        held = [c for c in self.components if c.effect.frozen_on_model]
+        if not held:
+            return
+        model = self._without({c.effect.name for c in held})
+        for c in held:
+            if c is not new:
+                c.effect = copy.deepcopy(c.effect)
+            c.effect.refreeze(model)
 
     def _without(self, names) -> np.ndarray:
         """The current mean model with the components named ``names`` left out."""

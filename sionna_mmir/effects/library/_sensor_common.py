@@ -291,6 +291,19 @@ class RowExtension:
         return filter_rows(x, E, responses, first)
 
 
+class ExtendedRows:
+    """Mixin of the effects whose spectral operator extends the rows by a
+    :class:`RowExtension` held in ``self.extension``: the predictor is
+    frozen on the model the effect is added to and renewed on the whole
+    model whenever another effect joins it
+    (:meth:`~sionna_mmir.effects.base.Effect.refreeze`)."""
+
+    frozen_on_model = True
+
+    def refreeze(self, model: np.ndarray) -> None:
+        self.extension.fit(model)
+
+
 def filter_rows(x, E, responses, first=()):
     """``crop(IDFT(H_k DFT(extend(x))))`` for every response ``H_k`` (AD node).
 

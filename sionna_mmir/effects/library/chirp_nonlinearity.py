@@ -60,7 +60,7 @@ import numpy as np
 from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
-from ._sensor_common import (RowExtension, band_frequencies, check_float, check_int,
+from ._sensor_common import (ExtendedRows, RowExtension, band_frequencies, check_float, check_int,
                              last_axis, legendre_basis, scalar, unit_fast_time)
 
 MHZ = 1e6
@@ -79,7 +79,7 @@ def _times_j_power(z, m: int):
     return z
 
 
-class ChirpNonlinearity(Effect):
+class ChirpNonlinearity(ExtendedRows, Effect):
     """Ramp frequency error as a Legendre series (``len(degrees)`` parameters, MHz)."""
 
     name = "chirp_nonlinearity"

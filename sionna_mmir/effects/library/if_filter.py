@@ -100,7 +100,7 @@ import numpy as np
 from ...errors import ConfigError
 from .. import ops
 from ..base import Effect, ParamSpec
-from ._sensor_common import (LN10, RowExtension, band_frequencies, check_float, const,
+from ._sensor_common import (ExtendedRows, LN10, RowExtension, band_frequencies, check_float, const,
                              bin_power, check_int, chirp_deviation, last_axis, noise_bins,
                              scalar, seen_chirp_mean)
 
@@ -218,7 +218,7 @@ def corner_bounds(ctx):
             (np.log10(fs_k / 20), np.log10(fs_k * 1000)))
 
 
-class IFFilter(Effect):
+class IFFilter(ExtendedRows, Effect):
     """One or two first-order high-pass stages + a Butterworth low-pass (corners in
     log10 kHz), the share ``rho`` of the white floor they filter and the share
     ``a`` of the pre-window input the high-pass has settled on (5 parameters by
