@@ -5,10 +5,20 @@ Every transmitter leaks into every receiver over a few very short paths
 ranges of a few centimetres that are the same in every chirp and frame (TI's
 "antenna coupling" calibration, ColoRadar's ``coupling_calib.txt``)::
 
-    x[f, t, r, c, k] += sum_m A_m u_t w_r B[chip_t, chip_r] exp(j 2 pi (f0 + S t_k) tau_m)
+    x[f, t, r, c, k] += sum_m A_m u_t w_r B[chip_t, chip_r] exp(j 2 pi (f0 + S t_k) tau_m,tr)
+    tau_m,tr = tau_m + kappa_m d_tr / c
 
 with ``K`` (default 2) delays ``tau_m`` shared by all channels (equivalent
-ranges ``c tau / 2`` of 0.02 - 0.5 m, i.e. ``tau`` ~ 0.1 - 3.5 ns), complex
+ranges ``c tau / 2`` of 0.02 - 0.5 m, i.e. ``tau`` ~ 0.1 - 3.5 ns) and, per
+path, the share ``kappa_m`` in [0, 1] of the Tx-Rx antenna separation
+``d_tr = |p_t - p_r|`` in its length: a space wave from one antenna to the
+other (``kappa = 1``) is longer for antennas further apart, by several
+carrier cycles across an array (0-8 mm, 0-4 pi rad on an AWR1843), which no
+per-Tx and per-Rx factor can express; a leak common to all pairs (on-chip LO
+leakage, a bounce off a radome parallel to the array) has ``kappa = 0``.
+Each ``kappa_m`` starts at 0 or 1, whichever explains more of the residual
+(:func:`_greedy_delays`), since the likelihood in ``kappa`` wraps with the
+carrier phase.  Complex
 amplitudes ``A_m``, separable per-Tx and per-Rx complex factors ``u_t`` /
 ``w_r`` and, for a multi-chip radar, a complex factor ``B`` per (Tx chip, Rx
 chip) block (``ctx.tx_chip`` / ``ctx.rx_chip``).  There is no free
@@ -33,12 +43,16 @@ tone without rotating it (no ``1 / f_c`` ripple of the loss in ``tau``).
 ``A_m u_t w_r B`` is invariant to the (unconstrained) scale / phase gauge
 between the factors.
 
-Parameters: ``delay`` ``[K]`` [ns], ``amp`` ``[K, 2]``, ``tx`` ``[T, 2]``,
-``rx`` ``[R, 2]`` (re, im; normalised units), with more than one chip
-``chip`` ``[n_chips^2, 2]``, and with ``spread`` ``log_spread`` ``[1]``
-(``ln rho``): ``3 K + 2 (T + R)`` (+ ``2 n_chips^2``) (+ 1) numbers.
+Parameters: ``delay`` ``[K]`` [ns], ``separation`` ``[K]`` (``kappa``),
+``amp`` ``[K, 2]``, ``tx`` ``[T, 2]``, ``rx`` ``[R, 2]`` (re, im; normalised
+units), with more than one chip ``chip`` ``[n_chips^2, 2]``, and with
+``spread`` ``log_spread`` ``[1]`` (``ln rho``): ``4 K + 2 (T + R)`` (+ ``2
+n_chips^2``) (+ 1) numbers.  Values without ``separation`` (fitted before
+it existed) mean ``kappa = 0``.
 """
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 
@@ -62,6 +76,30 @@ def tone_phase(ctx, tau) -> np.ndarray:
     radar = ctx.radar
     tk = ctx.fast_time - _centre_time(radar)
     return 2 * np.pi * radar.slope * np.asarray(tau, np.float64)[..., None] * tk
+
+
+def antenna_separation(ctx) -> np.ndarray:
+    """``d_tr = |p_t - p_r|`` ``[T, R]`` [m], the physical Tx-Rx antenna distances."""
+    radar = ctx.radar
+    tx = np.asarray(radar.tx_positions, np.float64)
+    rx = np.asarray(radar.rx_positions, np.float64)
+    return np.linalg.norm(tx[:, None] - rx[None], axis=-1)
+
+
+def pair_phase(ctx, kappa) -> np.ndarray:
+    """Phase ``[K, T, R, N]`` of the separation part of each path's delay,
+    ``2 pi (f_c + S (t_k - t_c)) kappa_m d_tr / c`` (the carrier part
+    referred to ``f_c`` as the stored amplitudes are)."""
+    dt = np.asarray(kappa, np.float64)[:, None, None] * antenna_separation(ctx)[None] \
+        / SPEED_OF_LIGHT                                                        # [K, T, R]
+    return 2 * np.pi * ctx.radar.center_frequency * dt[..., None] + tone_phase(ctx, dt)
+
+
+def _kappa(values) -> np.ndarray:
+    """``kappa [K]`` of parameter values (0 where the values predate it)."""
+    k = values.get("separation")
+    return np.zeros(len(np.atleast_1d(values["delay"]))) if k is None \
+        else np.asarray(k, np.float64).reshape(-1)
 
 
 def _chip_pair(ctx) -> np.ndarray:
@@ -91,6 +129,7 @@ def coupling_signal(values: dict, ctx) -> np.ndarray:
     """Fitted leakage in the time domain, complex ``[T, R, N]`` (normalised units)."""
     tau = np.asarray(values["delay"], np.float64) * NS
     tones = _cplx(values["amp"])[:, None] * np.exp(1j * tone_phase(ctx, tau))   # [K, N]
+    tones = tones[:, None, None, :] * np.exp(1j * pair_phase(ctx, _kappa(values)))
     return channel_factor(values, ctx)[..., None] * tones.sum(axis=0)
 
 
@@ -119,25 +158,103 @@ def _project(z, tones):
     return h.T
 
 
-def _greedy_delays(z, ctx, K, taus):
-    """Greedy (orthogonal matching pursuit) choice of ``K`` delays from a grid.
+def _pair_tones(ctx, taus, kappas) -> np.ndarray:
+    """Unit tones ``[len(taus), T * R, N]`` of paths with delays ``taus`` [s]
+    and separation shares ``kappas`` (:func:`pair_phase`)."""
+    ph = tone_phase(ctx, taus)[:, None, None, :] + pair_phase(ctx, kappas)
+    return np.exp(1j * ph).reshape(len(taus), -1, ph.shape[-1])
 
-    ``z [C, N]`` channels, ``taus [G]`` candidate delays [s]; at each step the
-    candidate with the largest energy (summed over channels) in the current
-    residual is picked, then all amplitudes are re-fitted jointly.
-    """
-    atoms = np.exp(1j * tone_phase(ctx, taus))                                # [G, N]
-    norm = np.sum(np.abs(atoms) ** 2, axis=1)
+
+def _project_pairs(z, tones):
+    """LS amplitudes ``[C, K]`` of per-channel tones ``[K, C, N]`` in ``z [C, N]``
+    (the normal equations per channel, batched; a tiny ridge keeps two
+    coinciding tones solvable)."""
+    t = np.transpose(tones, (1, 2, 0))                                       # [C, N, K]
+    gram = np.conj(np.swapaxes(t, 1, 2)) @ t                                 # [C, K, K]
+    gram = gram + 1e-9 * np.trace(gram, axis1=1, axis2=2)[:, None, None] * np.eye(t.shape[2])
+    rhs = np.einsum("cnk,cn->ck", np.conj(t), z)
+    return np.linalg.solve(gram, rhs[..., None])[..., 0]
+
+
+def _separable_error(z, ctx, tau, kappa, seen) -> float:
+    """Residual energy of ``z [C, N]`` after the separable leakage
+    (:func:`factorise`) with paths ``tau``, ``kappa``, amplitudes from a
+    per-channel LS fit."""
+    T, R = ctx.radar.num_tx, ctx.radar.num_rx
+    tones = _pair_tones(ctx, tau, kappa)
+    h = _project_pairs(z, tones).reshape(T, R, -1)
+    A, u, w, B = factorise(h, ctx, seen, n_iter=10)
+    g = (u[:, None] * w[None, :] * B[_chip_pair(ctx)])[..., None] * A        # [T, R, K]
+    return float(np.sum(np.abs(z - np.einsum("ck,kcn->cn", g.reshape(T * R, -1), tones)) ** 2))
+
+
+def _descend(z, ctx, t_k, kappa, err, grid, seen, passes: int, window=None):
+    """Coordinate descent of the delays ``t_k`` over ``grid`` (within
+    ``window`` [s] of the current value when given), ``kappa`` held;
+    returns ``(error, delays)``."""
+    for _ in range(passes):
+        moved = False
+        for m in range(len(t_k)):
+            near = grid if window is None else grid[np.abs(grid - t_k[m]) <= window]
+            for t in near:
+                trial = t_k.copy()
+                trial[m] = t
+                e = _separable_error(z, ctx, trial, kappa, seen)
+                if e < err:
+                    err, t_k, moved = e, trial, True
+        if not moved:
+            break
+    return err, t_k
+
+
+def _refine_paths(z, ctx, tau, taus, seen, passes: int = 2, stride: int = 4):
+    """The paths' separation shares (every assignment of 0 or 1) and delays
+    (coordinate descent from the greedy ``tau``, on every ``stride``-th
+    point of the grid ``taus``, then on the full grid near the result),
+    scored by the residual the *separable* pattern leaves
+    (:func:`_separable_error`).  The greedy choice fits every channel freely,
+    where a space wave's per-pair carrier phase costs nothing and two tones
+    within a range bin trade places; the pattern is what the effect fits.
+    Returns ``(tau, kappa)`` sorted by delay."""
+    best = (np.inf, None, None)
+    step = float(taus[1] - taus[0]) if len(taus) > 1 else 0.0
+    for kappa in itertools.product((0.0, 1.0), repeat=len(tau)):
+        kappa, t_k = np.array(kappa), np.array(tau, float)
+        err = _separable_error(z, ctx, t_k, kappa, seen)
+        err, t_k = _descend(z, ctx, t_k, kappa, err, taus[::stride], seen, passes)
+        err, t_k = _descend(z, ctx, t_k, kappa, err, taus, seen, 1, window=stride * step)
+        if err < best[0]:
+            best = (err, t_k, kappa)
+    order = np.argsort(best[1])
+    return best[1][order], best[2][order]
+
+
+def _greedy_delays(z, ctx, K, taus):
+    """Greedy (orthogonal matching pursuit) choice of ``K`` paths from a grid
+    of delays and separation shares (0 and 1).
+
+    ``z [C, N]`` channels (``C = T R``), ``taus [G]`` candidate delays [s];
+    at each step the candidate with the largest energy (summed over
+    channels) in the current residual is picked, then all amplitudes are
+    re-fitted jointly, per channel.  Returns ``(tau [K], kappa [K])`` sorted
+    by delay."""
+    grid = [(t, k) for k in (0.0, 1.0) for t in taus]
+    atoms = np.concatenate([_pair_tones(ctx, taus, np.full(len(taus), k)) for k in (0.0, 1.0)])
+    norm = np.sum(np.abs(atoms[:, 0]) ** 2, axis=-1)                             # [2G]
+    gtau = np.array([g[0] for g in grid])
     chosen = []
     resid = z
     for _ in range(K):
-        score = np.sum(np.abs(np.conj(atoms) @ resid.T) ** 2, axis=1) / norm
+        score = np.sum(np.abs(np.einsum("gcn,cn->gc", np.conj(atoms), resid)) ** 2,
+                       axis=1) / norm
         for j in chosen:          # keep picks half a range bin apart
-            score[np.abs(taus - taus[j]) < 0.5 / ctx.radar.bandwidth] = -1.0
+            score[np.abs(gtau - gtau[j]) < 0.5 / ctx.radar.bandwidth] = -1.0
         chosen.append(int(np.argmax(score)))
         tones = atoms[chosen]
-        resid = z - _project(z, tones) @ tones
-    return np.array(sorted(taus[chosen]))
+        h = _project_pairs(z, tones)
+        resid = z - np.einsum("ck,kcn->cn", h, tones)
+    order = sorted(chosen, key=lambda j: gtau[j])
+    return gtau[order], np.array([grid[j][1] for j in order])
 
 
 def factorise(h, ctx, weight=None, n_iter: int = 50):
@@ -241,10 +358,13 @@ class Coupling(Effect):
         z = static_view(residual)                                   # static: frame/chirp mean
         seen = np.any(z != 0, axis=-1)                              # observed channels
         z = z.reshape(T * R, N)
-        tau = _greedy_delays(z, ctx, self.num_paths, taus)
-        h = _project(z, np.exp(1j * tone_phase(ctx, tau))).reshape(T, R, -1)
+        tau, kappa = _greedy_delays(z, ctx, self.num_paths, taus)
+        tau, kappa = _refine_paths(z, ctx, tau, taus, seen.reshape(T, R))
+        h = _project_pairs(z, _pair_tones(ctx, tau, kappa)).reshape(T, R, -1)
         A, u, w, B = factorise(h, ctx, seen)
         specs = {"delay": ParamSpec(tau / NS, lower=lo / NS, upper=hi / NS, unit="ns"),
+                 "separation": ParamSpec(kappa, lower=0.0, upper=1.0,
+                                         unit="share of the Tx-Rx antenna distance"),
                  "amp": ParamSpec(_pairs(A), unit="normalised (referred to f_c)"),
                  "tx": ParamSpec(_pairs(u), unit="complex factor"),
                  "rx": ParamSpec(_pairs(w), unit="complex factor")}
@@ -267,17 +387,26 @@ class Coupling(Effect):
         return ops.abs2(ops.dft(self._leak(p, ctx))) * rho2
 
     def _leak(self, p, ctx):
-        """The separable leakage ``u_t w_r B A_m tone_m`` ``[1, T, R, 1, N]`` (re, im)."""
+        """The leakage ``u_t w_r B sum_m A_m tone_m,tr`` ``[1, T, R, 1, N]`` (re, im)."""
         radar = ctx.radar
         T, R, N = radar.num_tx, radar.num_rx, radar.num_samples
         K = self.num_paths
         tk = ops.tensor((2 * np.pi * radar.slope * NS
-                         * (ctx.fast_time - _centre_time(radar))).reshape(1, N))
-        phase = ops.view(p["delay"], (K, 1)) * tk                               # [K, N]
-        tone = ops.cmul(ops.cis(phase), (ops.column(p["amp"], 0, (K, 1)),
-                                         ops.column(p["amp"], 1, (K, 1))))
-        tone = (dr.sum(tone[0], axis=0), dr.sum(tone[1], axis=0))             # [N]
-        tone = (ops.view(tone[0], (1, 1, 1, 1, N)), ops.view(tone[1], (1, 1, 1, 1, N)))
+                         * (ctx.fast_time - _centre_time(radar))).reshape(1, 1, 1, N))
+        per_m = 2 * np.pi * (radar.center_frequency
+                             + radar.slope * (ctx.fast_time - _centre_time(radar))) \
+            / SPEED_OF_LIGHT                                                    # [N] rad/m
+        dw = ops.tensor((antenna_separation(ctx)[..., None] * per_m)[None])   # [1, T, R, N]
+        kappa = p.get("separation")
+        phase = ops.view(p["delay"], (K, 1, 1, 1)) * tk                         # [K, 1, 1, N]
+        if kappa is not None:
+            phase = phase + ops.view(kappa, (K, 1, 1, 1)) * dw                  # [K, T, R, N]
+        tone = ops.cmul(ops.cis(phase), (ops.column(p["amp"], 0, (K, 1, 1, 1)),
+                                         ops.column(p["amp"], 1, (K, 1, 1, 1))))
+        n_tr = (T, R) if kappa is not None else (1, 1)
+        tone = (dr.sum(tone[0], axis=0), dr.sum(tone[1], axis=0))             # [T, R, N]
+        tone = (ops.view(tone[0], (1,) + n_tr + (1, N)),
+                ops.view(tone[1], (1,) + n_tr + (1, N)))
         st, sr = (1, T, 1, 1, 1), (1, 1, R, 1, 1)
         g = ops.cmul((ops.column(p["tx"], 0, st), ops.column(p["tx"], 1, st)),
                      (ops.column(p["rx"], 0, sr), ops.column(p["rx"], 1, sr)))
@@ -305,6 +434,7 @@ class Coupling(Effect):
                 "channel_level_db_range": [
                     round(float(20 * np.log10(max(lvl.min(), 1e-30))), 2),
                     round(float(20 * np.log10(max(lvl.max(), 1e-30))), 2)]}
+        out["separation_share"] = _kappa(p).round(4).tolist()
         if "log_spread" in p:
             out["channel_deviation_rms"] = round(float(np.exp(np.asarray(p["log_spread"])[0])), 4)
         return out
