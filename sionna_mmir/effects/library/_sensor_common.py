@@ -227,8 +227,10 @@ class RowExtension:
 
     The predictor is pooled over all rows (tones share frequencies across
     channels and chirps, only amplitudes differ) and *frozen* when
-    :meth:`fit` sees the initial model (so the map stays linear and AD
-    exact); without a fit it is estimated from the signal itself.  If the
+    :meth:`fit` sees the model (so the map stays linear and AD exact); the
+    effects model calls it again whenever an effect joins the model
+    (:class:`ExtendedRows`); without a fit it is estimated from the signal
+    itself.  If the
     predicted samples grow (unstable predictor) or the signal is empty the
     extension is switched off (plain circular DFT).
     """

@@ -40,7 +40,7 @@ gets Gibbs ringing in its first and last samples (about 10 % of the
 correction); each fast-time row is therefore first extended by
 ``extension`` samples on both sides by linear prediction
 (:class:`~._sensor_common.RowExtension`, order ``prediction_order``, frozen on
-the initial model), differentiated on the longer grid and cut back (about
+the model and renewed when another effect joins it), differentiated on the longer grid and cut back (about
 1 % error in the tests); ``extension=0`` gives the plain DFT derivative.
 
 Parameters: ``c`` ``[len(degrees)]`` [MHz].  Typical VCO ramp errors are

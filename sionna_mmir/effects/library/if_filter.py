@@ -30,7 +30,9 @@ end wraps onto its start and the filters' memory (a few samples) sees that
 jump, an error of about -20 dB of the signal.  Each fast-time row is
 therefore first extended by ``extension`` samples on both sides by linear
 prediction (:class:`~._sensor_common.RowExtension`, predictor of order
-``prediction_order`` frozen on the initial model), filtered on the longer
+``prediction_order`` frozen on the model and renewed whenever another effect
+joins it: a leakage adopted after the filter brings a tone a predictor
+frozen without it continues wrongly), filtered on the longer
 grid, and cut back to the window (error about -40 dB in the tests);
 ``extension=0`` gives the plain DFT-domain product.
 
