@@ -639,6 +639,30 @@ def test_17c_filter_beside_a_leakage_added_in_either_order(leak_range):
         assert err < 0.01, (order, err)
 
 
+def test_17d_leakage_moved_behind_the_filter():
+    """``IFFilter.tone_gains`` is the filter's steady-state gain (truth:
+    scipy's analog response, tones 4-40 bins up), and a leakage fitted to
+    what the filter leaves, moved behind it (``Coupling.behind``), gets its
+    unfiltered amplitude back."""
+    ctx, clean, truth, leak = _leaky_if_capture(0.3, 10.0)
+    radar = ctx.radar
+    m = EffectModel(ctx, truth, clean)
+    filt = m.add(IFFilter(highpass_stages=1, transient=False))
+    filt.values["log_fc"] = np.log10([F_HP / 1e3, F_LP / 1e3])
+    f = np.array([4.3, 6.6, 12.2, 25.0, 39.7]) * radar.sample_rate / radar.num_samples
+    g = filt.effect.tone_gains(filt.values, ctx, f)
+    assert np.max(np.abs(g / _analog_response(f) - 1)) < 0.01
+    fb = radar.slope * leak["delay"] * 1e-9
+    a = leak["amp"][:, 0] + 1j * leak["amp"][:, 1]
+    adopted = a * _analog_response(fb)
+    seen = {**leak, "amp": np.stack([adopted.real, adopted.imag], axis=1)}
+    moved = Coupling(num_paths=1).behind(
+        seen, ctx, lambda fr: filt.effect.tone_gains(filt.values, ctx, fr))
+    back = moved["amp"][:, 0] + 1j * moved["amp"][:, 1]
+    assert np.abs(back / a - 1).max() < 0.01
+    assert Coupling(num_paths=1).behind(seen, ctx, lambda fr: None) is None
+
+
 def test_18_if_filter_recovered():
     radar, clean, meas, noise = _if_capture(0.02, 14)
     ctx = EffectContext(radar)

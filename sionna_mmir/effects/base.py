@@ -149,6 +149,21 @@ class Effect:
         output at the window's edges goes wrong with it.  Nothing to renew
         by default."""
 
+    def tone_gains(self, values: dict, ctx, freqs) -> np.ndarray | None:
+        """Complex gain of the effect on steady tones at the beat frequencies
+        ``freqs`` [Hz] (``[K]``), at parameter values ``values`` (NumPy): a
+        linear filter's response as its operator applies it; None for an
+        effect that is not such a filter (the default)."""
+        return None
+
+    def behind(self, values: dict, ctx, gains) -> dict | None:
+        """``values`` of an additive effect moved behind a filter added after
+        it: fitted to what the filter leaves, each of its tones is divided by
+        ``gains(freqs)`` (:meth:`tone_gains` of the filter), so the filtered
+        model starts where it was.  None where that has no meaning (the
+        default)."""
+        return None
+
     def held_state(self):
         """A context in which the effect keeps whatever it derives from its
         input (ego motion's geometry) fixed at what it first derives there,

@@ -65,6 +65,8 @@ from .scatterer import single_blas, static_view
 
 dr, mi = ops.dr, ops.mi
 NS = 1e-9
+#: largest factor by which :meth:`Coupling.behind` raises a path's amplitude
+MAX_BEHIND = 1e3
 
 
 def _centre_time(radar) -> float:
@@ -421,6 +423,20 @@ class Coupling(Effect):
     def silenced(self, values):
         """The leakage with zero amplitude (its delays and channel factors kept)."""
         return {**values, "amp": np.zeros_like(np.asarray(values["amp"]))}
+
+    def behind(self, values, ctx, gains):
+        """The leakage restarted behind a filter: each path's amplitude divided
+        by the filter's gain at its beat frequency ``S tau_m`` (the growth
+        capped at :data:`MAX_BEHIND`, where the filter's notch would make
+        it unbounded)."""
+        tau = np.asarray(values["delay"], np.float64) * NS
+        g = gains(ctx.radar.slope * tau)
+        if g is None:
+            return None
+        g = np.asarray(g, complex)
+        small = np.abs(g) < 1.0 / MAX_BEHIND
+        g = np.where(small, g / np.maximum(np.abs(g), 1e-300) / MAX_BEHIND, g)
+        return {**values, "amp": _pairs(_cplx(values["amp"]) / g)}
 
     def summary(self, p, ctx):
         tau = np.asarray(p["delay"], np.float64) * NS

@@ -95,6 +95,7 @@ approximate likelihood wins (see :meth:`IFFilter._init`).
 """
 from __future__ import annotations
 
+import copy
 import typing
 
 import numpy as np
@@ -505,6 +506,21 @@ class IFFilter(ExtendedRows, Effect):
             mag = re * re + im * im
             h = ops.cmul(h, (re / mag, -im / mag))
         return h
+
+    def tone_gains(self, values, ctx, freqs):
+        """Least-squares gain of :meth:`apply` (settling and all) on a unit
+        tone at each beat frequency ``freqs`` [Hz], complex ``[K]``, its rows
+        extended by a predictor of those tones (the steady state)."""
+        r = ctx.radar
+        f = np.atleast_1d(np.asarray(freqs, np.float64))
+        tones = np.exp(2j * np.pi * f[:, None] * np.arange(r.num_samples) / r.sample_rate)
+        x = tones[None, None, None]
+        probe = copy.deepcopy(self)
+        probe.extension.fit(x)
+        p = {k: ops.tensor(np.asarray(v, np.float64)) for k, v in values.items()}
+        with dr.suspend_grad(), ops.single_thread():
+            y = ops.to_numpy(probe.apply(ops.tensor(x), p, ctx))[0, 0, 0]
+        return np.sum(np.conj(tones) * y, axis=-1) / r.num_samples
 
     def _highpass_corners(self, p) -> list:
         """``log10(f / kHz)`` of the high-pass stages in ``p`` (Dr.Jit scalars)."""
