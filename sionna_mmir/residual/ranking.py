@@ -592,7 +592,7 @@ def _scores(g, candidates, bases, fits, penalty) -> list:
             base = fit.get("base", base)        # refitted beside a replacing candidate
             secs += fit["s"]
             floors.append(fit["floor"])
-            gains.append(_base_nll(base, fit) - fit["nll"] * n_test)
+            gains.append(_fold_gain(bases[k], fit))
             if "noise_nll" in fit and "dev" in base:
                 noise.append(base["dev"] - fit["noise_nll"] * n_test)
             if "noise_slots" in fit and "slots" in base:

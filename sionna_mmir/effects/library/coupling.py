@@ -154,12 +154,6 @@ def coupling_profile(comp_values: dict, ctx, scale: float = 1.0, n_bins: int | N
 
 
 # ----------------------------------------------------------------- init
-def _project(z, tones):
-    """LS amplitudes of ``tones [K, N]`` in every channel of ``z [C, N]`` -> ``[C, K]``."""
-    h, *_ = np.linalg.lstsq(tones.T, z.T, rcond=None)
-    return h.T
-
-
 def _pair_tones(ctx, taus, kappas) -> np.ndarray:
     """Unit tones ``[len(taus), T * R, N]`` of paths with delays ``taus`` [s]
     and separation shares ``kappas`` (:func:`pair_phase`)."""
@@ -395,10 +389,7 @@ class Coupling(Effect):
         K = self.num_paths
         tk = ops.tensor((2 * np.pi * radar.slope * NS
                          * (ctx.fast_time - _centre_time(radar))).reshape(1, 1, 1, N))
-        per_m = 2 * np.pi * (radar.center_frequency
-                             + radar.slope * (ctx.fast_time - _centre_time(radar))) \
-            / SPEED_OF_LIGHT                                                    # [N] rad/m
-        dw = ops.tensor((antenna_separation(ctx)[..., None] * per_m)[None])   # [1, T, R, N]
+        dw = ops.tensor(pair_phase(ctx, [1.0]))                                # [1, T, R, N]
         kappa = p.get("separation")
         phase = ops.view(p["delay"], (K, 1, 1, 1)) * tk                         # [K, 1, 1, N]
         if kappa is not None:
