@@ -206,7 +206,9 @@ def _reproduce_line(args) -> str:
                                     ("radar", args.radar), ("slope", args.slope),
                                     ("sample-rate", args.sample_rate),
                                     ("samples", args.samples),
-                                    ("seed", args.seed or None)) if v is not None)
+                                    ("seed", args.seed or None),
+                                    ("room-scale", None if args.room_scale == 1.0
+                                     else args.room_scale)) if v is not None)
     return f"Reproduce: `.venv/bin/python {cmd}`"
 
 
@@ -258,6 +260,9 @@ def main(argv=None) -> int:
                    help="chirp slope [MHz/us] (default: the radar's nominal waveform)")
     p.add_argument("--sample-rate", type=float, default=None, help="ADC sample rate [Msps]")
     p.add_argument("--samples", type=int, default=None, help="ADC samples per chirp")
+    p.add_argument("--room-scale", type=float, default=1.0,
+                   help="floor plan of the room stretched by this factor (2.5: a 25 m hall; "
+                        "the waveform must reach it)")
     p.add_argument("--workers", default="auto",
                    help="processes per loop for a round's fits (default: one per core)")
     p.add_argument("--work", default="/tmp/sionna_mmir_undeclared_suite")
@@ -285,10 +290,13 @@ def main(argv=None) -> int:
 
     radar = args.radar or ("cascade" if args.subset == "full" else "awr1843")
     config, radar = _waveform(args, radar)
+    if args.room_scale != 1.0:
+        radar = f"{radar}, room x{args.room_scale:g}"
     os.makedirs(args.out, exist_ok=True)
     rows = _previous_rows(args.out)
     for kind in kinds:
-        case = make_case(kind, seed=args.seed, radar=config, num_chirps=args.chirps)
+        case = make_case(kind, seed=args.seed, radar=config, num_chirps=args.chirps,
+                         room_scale=args.room_scale)
         commit = _commit()                  # the code the run starts with
         doc, wall = _run_case(case, os.path.join(args.work, case.name), args.chirps,
                                args.workers)

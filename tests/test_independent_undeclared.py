@@ -497,3 +497,33 @@ def test_23_waveform_variant_puts_the_corners_at_their_range(tmp_path):
                       (dict(num_samples=0), "num_samples"), (dict(slope=-1e13), "slope")):
         with pytest.raises(InputValueError, match=words):
             und.waveform_variant("cascade", **kw)
+
+
+def test_24_room_scale_makes_a_hall():
+    """A room of scale 2.5 (a 25 m hall, a waveform that reaches it): the
+    walls 2.5 times as far as the nominal room's (same seed), the corners at
+    5-20 m with edges sqrt(2.5) times the room's draws, the strongest corner
+    at its range in the capture; the nominal scale makes the same bytes as
+    the default; the nominal waveform and scales outside [1, 4] are refused."""
+    r = und.waveform_variant("awr1843", slope=4e13)
+    room = und.make_case("clean", seed=2, radar=r)
+    hall = und.make_case("clean", seed=2, radar=r, room_scale=2.5)
+    same = und.make_case("clean", seed=2, radar=r, room_scale=1.0)
+    assert same.capture.frames.tobytes() == room.capture.frames.tobytes()
+    b0, b1 = room.truth["room"], hall.truth["room"]
+    for key in ("x_far", "y_left", "y_right"):
+        assert b1[key] == pytest.approx(2.5 * b0[key])
+    assert b1["height"] == b0["height"]
+    pos = np.asarray(r.position)
+    for c in hall.truth["corners"]:
+        assert 5.0 <= np.linalg.norm(np.asarray(c["centre_m"]) - pos) <= 20.0
+        lo, hi = (0.06, 0.12) if c["kind"] == "trihedral" else (0.05, 0.08)
+        assert np.sqrt(2.5) * lo <= c["size_m"] <= np.sqrt(2.5) * hi
+    _, rng, _ = strongest(hall)
+    assert rng > 5.0
+    assert abs(np.argmax(profile(hall.capture.adc, 8)) / 8 - rng / r.range_resolution) < 0.5
+    with pytest.raises(InputValueError, match="maximum range"):
+        und.make_case("clean", radar="awr1843", room_scale=2.5)
+    for bad in (0.5, 5.0, float("nan"), "big", True):
+        with pytest.raises(InputValueError, match="room_scale"):
+            und.make_case("clean", radar=r, room_scale=bad)

@@ -84,6 +84,9 @@ NOISE_STD_COUNTS = 10.0
 IF_OVERSAMPLING = 4
 #: Frame period of multi-frame captures [s].
 FRAME_PERIOD_S = 0.1
+#: farthest point of the nominal room from the radar [m] (a room of scale
+#: ``s`` reaches ``s`` times that; ``make_case``'s ``room_scale``)
+ROOM_REACH_M = 11.2
 
 #: ColoRadar cascade ``waveform_cfg.txt`` (times repaired to seconds).
 COLORADAR_CASCADE_WAVEFORM = dict(
@@ -185,8 +188,9 @@ def _count(owner: str, name: str, v) -> int:
     return int(v)
 
 
-def _radar(radar, num_chirps, num_samples) -> RadarConfig:
-    """The nominal radar for a ``radar`` argument (name or RadarConfig)."""
+def _radar(radar, num_chirps, num_samples, room_scale: float = 1.0) -> RadarConfig:
+    """The nominal radar for a ``radar`` argument (name or RadarConfig),
+    checked to reach a room of scale ``room_scale`` (11.2 m each)."""
     over = {k: v for k, v in (("num_chirps", num_chirps), ("num_samples", num_samples))
             if v is not None}
     over = {k: _count("make_case", k, v) for k, v in over.items()}
@@ -208,11 +212,12 @@ def _radar(radar, num_chirps, num_samples) -> RadarConfig:
     if cfg.slope <= 0:
         raise InputValueError(f"make_case: radar {cfg.name!r} has a falling chirp (slope "
                               f"{cfg.slope:g} Hz/s); the suite's scenes need a rising one")
-    if cfg.max_range < 12.0:
+    reach = ROOM_REACH_M * room_scale
+    if cfg.max_range < reach + 0.8:
         raise InputValueError(
-            f"make_case: the room reaches 11.2 m but radar {cfg.name!r} has a maximum "
+            f"make_case: the room reaches {reach:.1f} m but radar {cfg.name!r} has a maximum "
             f"range of {cfg.max_range:.1f} m (f_s c / 2 S); use a waveform with "
-            f"f_s / S >= 8e-8 s")
+            f"f_s / S >= {2 * (reach + 0.8) / C0:.2g} s")
     return cfg
 
 
@@ -249,8 +254,9 @@ def _stream(seed: int, name: str) -> np.random.Generator:
 class _Context:
     """Radar, scene, time grids and helpers shared by the cases of one (seed, radar)."""
 
-    def __init__(self, radar: RadarConfig, seed: int, num_frames: int, num_clutter):
-        self.radar, self.seed = radar, seed
+    def __init__(self, radar: RadarConfig, seed: int, num_frames: int, num_clutter,
+                 room_scale: float = 1.0):
+        self.radar, self.seed, self.room_scale = radar, seed, float(room_scale)
         self.num_tx, self.num_rx = radar.num_tx, radar.num_rx
         cascade = self.num_tx % 3 == 0 and self.num_rx % 4 == 0 and \
             self.num_tx // 3 == self.num_rx // 4 > 1
@@ -264,7 +270,7 @@ class _Context:
         n_corners = int(rng.integers(2, 5))
         if num_clutter is None:
             num_clutter = 4000 if self.num_tx * self.num_rx > 16 else 1500
-        self.scene = build_scene(rng, self.lam, n_corners, int(num_clutter))
+        self.scene = build_scene(rng, self.lam, n_corners, int(num_clutter), self.room_scale)
         fs = radar.sample_rate
         self.n_pre = int(math.floor(radar.adc_start_time * fs))
         self.t = radar.adc_start_time + (np.arange(radar.num_samples + self.n_pre)
@@ -289,9 +295,11 @@ class _Context:
         return self.t[0] + np.arange(up * self.t.size) / (up * self.radar.sample_rate)
 
     def random_point(self, rng, r_min, r_max, az_max_deg, z_range) -> np.ndarray:
-        """A point at range ``r_min..r_max`` and ``|azimuth| <= az_max_deg`` inside the room."""
+        """A point at range ``r_min..r_max`` (times the room's scale) and
+        ``|azimuth| <= az_max_deg`` inside the room."""
         b = self.scene.bounds
         lo, hi = np.array(b["cabinet_lo"]), np.array(b["cabinet_hi"])
+        r_min, r_max = self.room_scale * r_min, self.room_scale * r_max
         for _ in range(10000):
             r, az = rng.uniform(r_min, r_max), np.radians(rng.uniform(-az_max_deg, az_max_deg))
             p = np.array([r * math.cos(az), r * math.sin(az), rng.uniform(*z_range)])
@@ -499,7 +507,8 @@ def _build(ctx: _Context, effects: tuple, snr_db: float, quantize: bool) -> Suit
 
 def make_case(kind, *, seed: int = 0, radar="cascade", num_chirps: int | None = None,
               num_samples: int | None = None, snr_db: float = 35.0, num_frames: int = 1,
-              num_clutter: int | None = None, quantize: bool = False) -> SuiteCase:
+              num_clutter: int | None = None, quantize: bool = False,
+              room_scale: float = 1.0) -> SuiteCase:
     """Generate one case.
 
     Parameters
@@ -524,6 +533,10 @@ def make_case(kind, *, seed: int = 0, radar="cascade", num_chirps: int | None = 
         Clutter points drawn (default 4000 for > 16 virtual channels, else 1500).
     quantize : bool
         Round the ADC to integer counts.
+    room_scale : float
+        Floor plan of the room stretched by this factor in [1, 4]: walls,
+        corner and scatterer ranges (reflector edges by its square root);
+        the radar must reach ``11.2 room_scale`` m.  2.5 makes a 25 m hall.
 
     Returns
     -------
@@ -536,13 +549,19 @@ def make_case(kind, *, seed: int = 0, radar="cascade", num_chirps: int | None = 
         Unknown kind, bad SNR, bad sizes or an unsuitable radar.
     """
     effects = parse_kind(kind)
-    ctx, snr = _setup(seed, radar, num_chirps, num_samples, snr_db, num_frames, num_clutter)
+    ctx, snr = _setup(seed, radar, num_chirps, num_samples, snr_db, num_frames, num_clutter,
+                      room_scale)
     return _build(ctx, effects, snr, bool(quantize))
 
 
-def _setup(seed, radar, num_chirps, num_samples, snr_db, num_frames, num_clutter):
+def _setup(seed, radar, num_chirps, num_samples, snr_db, num_frames, num_clutter,
+           room_scale=1.0):
     """Validated ``(_Context, snr_db)``."""
     snr = _check_snr(snr_db)
+    if isinstance(room_scale, bool) or not isinstance(room_scale, (int, float, np.number)) \
+            or not 1.0 <= float(room_scale) <= 4.0:
+        raise InputValueError(f"make_case: room_scale must be a number in [1, 4], "
+                              f"got {room_scale!r}")
     for name, v in (("seed", seed), ("num_frames", num_frames)):
         low = 1 if name == "num_frames" else 0
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
@@ -553,8 +572,8 @@ def _setup(seed, radar, num_chirps, num_samples, snr_db, num_frames, num_clutter
                                     or num_clutter < 1):
         raise InputValueError(f"make_case: num_clutter must be a positive integer, "
                               f"got {num_clutter!r}")
-    ctx = _Context(_radar(radar, num_chirps, num_samples), int(seed), int(num_frames),
-                   num_clutter)
+    ctx = _Context(_radar(radar, num_chirps, num_samples, float(room_scale)), int(seed),
+                   int(num_frames), num_clutter, float(room_scale))
     return ctx, snr
 
 

@@ -358,17 +358,20 @@ class Scene:
         return np.concatenate(tri) if tri else np.zeros((0, 3, 3))
 
 
-def draw_room(rng) -> tuple:
+def draw_room(rng, scale: float = 1.0) -> tuple:
     """Room bounds and the cabinet: ``(bounds, rects, objects)``.
 
     Room ``x in [-1, 9..10]``, ``y in [-(3.5..4.5), 3.5..4.5]``, height
     2.8-3.2 m; a 1.0 x 0.5 m cabinet, 1.6-2.0 m high, wood or metal, against
-    the left wall at ``x = 3..6`` m.
+    the left wall at ``x = 3..6`` m.  ``scale`` stretches the floor plan
+    (the far wall, the side walls and the cabinet's place; not the height
+    or the cabinet itself): a hall at ``scale = 2.5`` reaches 25 m.
     """
-    b = {"x_back": -1.0, "x_far": float(rng.uniform(9.0, 10.0)),
-         "y_right": -float(rng.uniform(3.5, 4.5)), "y_left": float(rng.uniform(3.5, 4.5)),
+    b = {"x_back": -1.0, "x_far": scale * float(rng.uniform(9.0, 10.0)),
+         "y_right": -scale * float(rng.uniform(3.5, 4.5)),
+         "y_left": scale * float(rng.uniform(3.5, 4.5)),
          "height": float(rng.uniform(2.8, 3.2))}
-    x_c = float(rng.uniform(3.0, 6.0))
+    x_c = scale * float(rng.uniform(3.0, 6.0))
     lo = (x_c, b["y_left"] - 0.5, 0.0)
     hi = (x_c + 1.0, b["y_left"], float(rng.uniform(1.6, 2.0)))
     material = "metal" if rng.uniform() < 0.5 else "wood"
@@ -386,8 +389,8 @@ def _inside_room(p, b, margin) -> bool:
             and b["y_right"] + margin < p[1] < b["y_left"] - margin and not in_cab)
 
 
-def _corner_position(rng, radar_pos):
-    r = rng.uniform(2.0, 8.0)
+def _corner_position(rng, radar_pos, scale=1.0):
+    r = scale * rng.uniform(2.0, 8.0)
     az = np.radians(rng.uniform(-45.0, 45.0))
     dz = rng.uniform(-0.15, 0.25)
     rh = math.sqrt(r * r - dz * dz)
@@ -401,9 +404,13 @@ def _aim(centre, radar_pos, rng, az_err_deg, el_err_deg) -> np.ndarray:
     return _unit(_rodrigues(axis, side, np.radians(rng.normal(0, el_err_deg))))
 
 
-def draw_corners(rng, bounds, occluders, n: int, radar_pos=RADAR_POSITION) -> list:
+def draw_corners(rng, bounds, occluders, n: int, radar_pos=RADAR_POSITION,
+                 scale: float = 1.0) -> list:
     """``n`` corners at 2-8 m, azimuth +-45 deg, pairwise >= 0.6 m apart in range and
     >= 18 deg in azimuth, in the room, clear of the cabinet and in its line of sight.
+    ``scale`` (:func:`draw_room`) multiplies the ranges and the reflectors'
+    edges by ``sqrt(scale)``, which keeps their radar cross-section's ratio to
+    the clutter on the walls (``A ~ scale^2``) at the room's.
 
     The first is a trihedral; the others trihedral (70 %) or dihedral.  Edge
     0.06-0.12 m (trihedral, 6-18 dBsm) or plates 0.05-0.08 m (dihedral);
@@ -414,7 +421,7 @@ def draw_corners(rng, bounds, occluders, n: int, radar_pos=RADAR_POSITION) -> li
     for _ in range(5000):
         if len(corners) == n:
             break
-        p, r, az = _corner_position(rng, radar_pos)
+        p, r, az = _corner_position(rng, radar_pos, scale)
         ok = _inside_room(p, bounds, 0.5) and not segment_blocked(radar_pos, p[None], occluders)[0]
         ok = ok and all(abs(r - r2) >= 0.6 and abs(az - a2) >= np.radians(18)
                         for r2, a2 in zip(ranges, azs))
@@ -422,7 +429,7 @@ def draw_corners(rng, bounds, occluders, n: int, radar_pos=RADAR_POSITION) -> li
             continue
         tri = not corners or rng.uniform() < 0.7
         axis = _aim(p, radar_pos, rng, 4.0, 2.0 if tri else 0.2)
-        size = rng.uniform(0.06, 0.12) if tri else rng.uniform(0.05, 0.08)
+        size = np.sqrt(scale) * (rng.uniform(0.06, 0.12) if tri else rng.uniform(0.05, 0.08))
         corners.append(Corner("trihedral" if tri else "dihedral", p, axis, float(size),
                               0.0 if tri else float(size)))
         ranges.append(r)
@@ -498,11 +505,12 @@ def draw_clutter(rng, rects, objects, corners_tri, lam, n: int,
                    "area_per_point_m2": float(area)}
 
 
-def build_scene(rng, lam: float, n_corners: int, n_clutter: int) -> Scene:
-    """Draw a room, its corners and clutter with generator ``rng``; ``lam`` [m]."""
-    bounds, rects, objects = draw_room(rng)
+def build_scene(rng, lam: float, n_corners: int, n_clutter: int, scale: float = 1.0) -> Scene:
+    """Draw a room (its floor plan stretched by ``scale``, :func:`draw_room`),
+    its corners and clutter with generator ``rng``; ``lam`` [m]."""
+    bounds, rects, objects = draw_room(rng, scale)
     cab_tri = np.concatenate([r.triangles() for r, o in zip(rects, objects) if o == "cabinet"])
-    corners = draw_corners(rng, bounds, cab_tri, n_corners)
+    corners = draw_corners(rng, bounds, cab_tri, n_corners, scale=scale)
     corner_tri = np.concatenate([c.triangles() for c in corners])
     clutter, info = draw_clutter(rng, rects, objects,
                                  (corner_tri, np.concatenate([cab_tri, corner_tri])), lam,
