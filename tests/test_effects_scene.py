@@ -17,7 +17,8 @@ from sionna_mmir.effects.library.coupling import Coupling, coupling_profile, cou
 from sionna_mmir.effects.library.ego_motion import EgoMotion
 from sionna_mmir.effects.library.ghost import MultipathGhost, ghost_delays
 from sionna_mmir.effects.library.moving_scatterer import MovingScatterer, moving_signal_np
-from sionna_mmir.effects.library.scatterer import MissingScatterer, carrier_phase, unit_vectors
+from sionna_mmir.effects.library.scatterer import (MissingScatterer, carrier_phase, ref_phase_np,
+                                                   unit_vectors)
 from sionna_mmir.errors import ConfigError
 from sionna_mmir.processing.doppler_fft import doppler_fft, doppler_velocities_m_s
 from sionna_mmir.radar.config import RadarConfig
@@ -549,6 +550,43 @@ def test_11b_retro_reflector_ghost_of_the_second_strongest_point():
     assert s["gamma_abs"] == pytest.approx(abs(gamma), rel=0.05)
     assert s["mixed"] < 0.05
     _check_fit(m, ctx, meas, model, noise)
+
+
+def test_11e_a_far_ghost_inside_a_range_bin_is_found_by_its_angle():
+    """A retro-reflector 12 m away, 1 m over the floor, on an AWR1843 at
+    40 MHz/us (0.31 m range bins): its floor ghost is 0.16 m (half a bin)
+    beyond it and 9 deg below, apart from the target by angle more than by
+    range (``target_coherence`` 0.6, the brute-force inner product of the
+    two templates).  The search finds it: image range, floor and
+    ``|Gamma|`` come back (truth: the planted floor image, hand delays).
+    A margin of 1.5 range bins searched no plane here."""
+    from sionna_mmir.effects.library.ghost import (MAX_TARGET_COHERENCE, ghost_templates,
+                                                   target_coherence)
+
+    radar = RadarConfig.awr1843(num_chirps=1, slope=4e13, sample_rate=10e6, num_samples=128,
+                                ramp_end_time=25e-6)
+    ctx = EffectContext(radar)
+    target, h = np.array([12.0, 0.5, 0.0]), 1.0
+    img = target * np.array([1, 1, -1]) + np.array([0, 0, -2 * h])
+    assert np.linalg.norm(img) - np.linalg.norm(target) < 0.6 * radar.range_resolution
+    direct_t = np.exp(1j * ref_phase_np(ctx, target, target))
+    double_t = ghost_templates(ctx, target, img[None])[1][0]
+    brute = abs(np.vdot(direct_t, double_t)) / direct_t.size
+    coh = target_coherence(ctx, target, img[None])[0]
+    assert coh == pytest.approx(brute, rel=1e-9) and 0.3 < coh < MAX_TARGET_COHERENCE
+    rng = np.random.default_rng(5)
+    gamma = 0.6 * np.exp(0.7j)
+    direct, full, noise = _ghost_capture(radar, gamma, rng, target=target, h=h, beta=0.0)
+    meas = full + noise
+    m = EffectModel(ctx, meas, direct)
+    eff = MultipathGhost()
+    comp = m.add(eff)
+    m.fit()
+    s = eff.summary(comp.values, ctx)
+    assert np.linalg.norm(np.array(s["target_m"]) - target) < 0.1
+    assert np.linalg.norm(s["image_m"]) == pytest.approx(np.linalg.norm(img), abs=0.02)
+    assert s["plane_normal"] == pytest.approx([0, 0, 1], abs=1e-6)
+    assert s["gamma_abs"] == pytest.approx(abs(gamma), rel=0.05)
 
 
 def test_11c_ghost_searches_the_scenes_flat_objects_first():
