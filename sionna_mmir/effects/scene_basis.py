@@ -37,15 +37,16 @@ from ..radar.config import SPEED_OF_LIGHT
 REST = "rest"
 
 
-#: objects under this share of the initial render's energy join the rest
+#: objects under this share of the render's energy join the rest
 #: (:meth:`SceneBasis.from_paths`).  The render's shares are the mesh's
-#: nominal materials, not the capture: in the suite's 25 m hall
-#: (``make_case(room_scale=2.5)``) two corner reflectors at 11-14 m and the
-#: far wall rendered under 1e-3 of the energy, shared the rest's single gain
-#: or were left out, and the loop adopted a per-channel gain on the clean
-#: capture and five movers instead of ego motion.  -50 dB keeps them; a
-#: capture's dynamic range after range and channel integration (the
-#: suite's 35 dB per sample plus ~30 dB) reaches that far.
+#: materials, not the capture's: in the suite's 25 m hall
+#: (``make_case(room_scale=2.5)``) the floor beside the radar renders at
+#: -2.4 dB of the energy, the far wall and two corner reflectors at 11-14 m
+#: at -29 to -37 dB.  Under a -30 dB bar they shared the rest's one gain,
+#: and the loop took a per-channel gain on the clean capture and movers
+#: for ego motion.  -50 dB keeps them: a capture's dynamic range after
+#: range and channel integration (the suite's 35 dB per sample, plus ~30)
+#: reaches that far.
 MIN_SHARE = 1e-5
 
 
