@@ -419,6 +419,15 @@ def _ghost_capture(radar, gamma, rng, target=TARGET, h=FLOOR_H, a=np.exp(0.3j), 
     return direct, full, _noise(full.shape, rng)
 
 
+def _fitted_ghost(ctx, meas, model):
+    """``(EffectModel, summary)`` of a default ``MultipathGhost`` fitted on ``meas`` over ``model``."""
+    m = EffectModel(ctx, meas, model)
+    eff = MultipathGhost()
+    comp = m.add(eff)
+    m.fit()
+    return m, eff.summary(comp.values, ctx)
+
+
 def test_09_ghost_gradient_matches_finite_differences():
     radar = RadarConfig.awr1843(num_chirps=1, num_samples=64)
     ctx = EffectContext(radar)
@@ -538,11 +547,7 @@ def test_11b_retro_reflector_ghost_of_the_second_strongest_point():
     direct, full, noise = _ghost_capture(radar, gamma, rng, beta=0.0)
     model = strong + direct
     meas = strong + full + noise
-    m = EffectModel(ctx, meas, model)
-    eff = MultipathGhost()
-    comp = m.add(eff)
-    m.fit()
-    s = eff.summary(comp.values, ctx)
+    m, s = _fitted_ghost(ctx, meas, model)
     assert np.linalg.norm(np.array(s["target_m"]) - TARGET) < 0.05
     img = TARGET * np.array([1, 1, -1]) + np.array([0, 0, -2 * FLOOR_H])
     assert np.linalg.norm(s["image_m"]) == pytest.approx(np.linalg.norm(img), abs=0.02)
@@ -577,12 +582,7 @@ def test_11e_a_far_ghost_inside_a_range_bin_is_found_by_its_angle():
     rng = np.random.default_rng(5)
     gamma = 0.6 * np.exp(0.7j)
     direct, full, noise = _ghost_capture(radar, gamma, rng, target=target, h=h, beta=0.0)
-    meas = full + noise
-    m = EffectModel(ctx, meas, direct)
-    eff = MultipathGhost()
-    comp = m.add(eff)
-    m.fit()
-    s = eff.summary(comp.values, ctx)
+    _, s = _fitted_ghost(ctx, full + noise, direct)
     assert np.linalg.norm(np.array(s["target_m"]) - target) < 0.1
     assert np.linalg.norm(s["image_m"]) == pytest.approx(np.linalg.norm(img), abs=0.02)
     assert s["plane_normal"] == pytest.approx([0, 0, 1], abs=1e-6)
