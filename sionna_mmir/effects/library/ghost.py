@@ -135,6 +135,14 @@ def gamma_and_mixed(coef, single, double, z, a):
 MAX_TARGET_COHERENCE = 2 ** -0.5
 
 
+def _element_terms(ctx, pts):
+    """The Tx and Rx factors of the referred phase of paths through ``pts
+    [..., 3]`` (:func:`ref_phase_np`): ``(U [..., T, N], V [..., R, N])``."""
+    fk = _freq_terms(ctx)[0]
+    return tuple(np.exp(1j * fk * excess_np(pts, el)[..., None])
+                 for el in (ctx.radar.tx_positions, ctx.radar.rx_positions))
+
+
 def target_coherence(ctx, p, img) -> np.ndarray:
     """``|<s_p, s_i>| / (|s_p| |s_i|)`` of the direct signal of the target
     ``p [3]`` and the double bounce via each image point ``img [B, 3]``
@@ -146,18 +154,13 @@ def target_coherence(ctx, p, img) -> np.ndarray:
     the separable phase: ``sum_n
     conj(w_p) w_i (sum_t conj(U_p) U_i) (sum_r conj(V_p) V_i) / (T R N)``.
     """
-    radar = ctx.radar
-    fk, sk = _freq_terms(ctx)
+    sk = _freq_terms(ctx)[1]
     img = np.atleast_2d(img)
-    up = np.exp(1j * fk * excess_np(p, radar.tx_positions)[..., None])       # [T, N]
-    vp = np.exp(1j * fk * excess_np(p, radar.rx_positions)[..., None])       # [R, N]
-    ui = np.exp(1j * fk * excess_np(img, radar.tx_positions)[..., None])     # [B, T, N]
-    vi = np.exp(1j * fk * excess_np(img, radar.rx_positions)[..., None])     # [B, R, N]
+    (up, vp), (ui, vi) = _element_terms(ctx, p), _element_terms(ctx, img)
     w = np.exp(1j * sk * 2 * (np.linalg.norm(img, axis=1)[:, None] - np.linalg.norm(p)))
     inner = np.sum(w * np.einsum("tn,btn->bn", up.conj(), ui)
                    * np.einsum("rn,brn->bn", vp.conj(), vi), axis=1)
-    T, R = radar.num_tx, radar.num_rx
-    return np.abs(inner) / (T * R * np.size(fk, -1))
+    return np.abs(inner) / up.shape[0] / vp.shape[0] / up.shape[1]
 
 
 def ghost_scores(ctx, z, p, a, img):
@@ -173,17 +176,9 @@ def ghost_scores(ctx, z, p, a, img):
     only, except ``<s2, z>`` (one ``T R N`` contraction per image point):
     the same numbers as building the ``[B, T, R, N]`` templates, without them.
     """
-    radar = ctx.radar
-    fk, sk = _freq_terms(ctx)
+    sk = _freq_terms(ctx)[1]
     T, R, N = z.shape
-
-    def tx_term(pts):                                      # [..., T, N]
-        return np.exp(1j * fk * excess_np(pts, radar.tx_positions)[..., None])
-
-    def rx_term(pts):                                      # [..., R, N]
-        return np.exp(1j * fk * excess_np(pts, radar.rx_positions)[..., None])
-
-    Up, Vp, Ui, Vi = tx_term(p), rx_term(p), tx_term(img), rx_term(img)
+    (Up, Vp), (Ui, Vi) = _element_terms(ctx, p), _element_terms(ctx, img)
     n_p, n_i = np.linalg.norm(p), np.linalg.norm(img, axis=1)
     w1 = np.exp(1j * sk * (n_p + n_i)[:, None])           # single bounce [B, N]
     w2 = np.exp(1j * sk * (2 * n_i)[:, None])              # double bounce [B, N]
