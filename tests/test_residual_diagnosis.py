@@ -476,6 +476,50 @@ def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
     assert best.name == "channel_gain"
 
 
+def test_14g_a_scene_side_candidate_too_costly_to_adopt_still_holds_a_sensor_effect_back():
+    """``_rank_round`` on fixed held-out gains: object patterns that predict
+    the held-out channels better than a per-channel gain, with more
+    parameters than their gain pays for (negative score), are not adopted,
+    but the gain is not either: the round takes an acceptable scene-side
+    candidate instead, or the next sensor effect they do not reach, or
+    nothing.  With the rule as it was (acceptable scene candidates only) the
+    gain is adopted in the first case."""
+    from sionna_mmir.effects.library.coupling import Coupling
+    from sionna_mmir.effects.library.scene_mismatch import ObjectPattern
+    from sionna_mmir.residual.ranking import CandidateScore, _rank_round
+
+    class Tiers:                                     # fixed gains, one held-out sample each
+        def __init__(self, gains):
+            self.model = type("M", (), {"ctx": None})()
+            self.gains = gains
+
+        def rank(self, group, penalty, maxiter, progress):
+            return [CandidateScore(e.name, n, g, g / 1e4, g - n, [g])
+                    for e in group for (name, (g, n)) in self.gains.items() if name == e.name]
+
+        def on_one_scale(self, ranking, best, *args):
+            return ranking, best
+
+    pool = [ChannelGain(), MissingScatterer(), ObjectPattern(), Coupling()]
+    for c in pool:
+        c.gain_floor = lambda ctx: 0.0
+    gain, patterns = (107.4, 14), (146.5, 420)       # the hall's clean control, parameters x10
+    cases = [({"channel_gain": gain, "object_pattern": patterns}, None),
+             ({"channel_gain": gain, "object_pattern": patterns, "missing_scatterer": (30, 5)},
+              "missing_scatterer"),
+             ({"channel_gain": gain, "object_pattern": patterns, "coupling": (200, 120)},
+              "coupling"),
+             ({"channel_gain": gain, "object_pattern": patterns, "coupling": (150, 100)}, None),
+             ({"channel_gain": gain, "object_pattern": (90.0, 420)}, "channel_gain"),
+             ({"channel_gain": gain, "object_pattern": (146.5, 100)}, "object_pattern")]
+    for gains, expected in cases:
+        _, best = _rank_round(Tiers(gains), pool, 1.0, 10, None, 0.0, set())
+        assert (best and best.name) == expected, (gains, best)
+    pool[2].gain_floor = lambda ctx: 1.0             # patterns under their floor do not count
+    _, best = _rank_round(Tiers(cases[0][0]), pool, 1.0, 10, None, 0.0, set())
+    assert best.name == "channel_gain"
+
+
 def test_14b_a_candidates_fitted_floor_is_held_against_its_gain():
     """The ranking takes the larger of an effect's own gain floor and the
     floor its fits called for (:attr:`CandidateScore.gain_floor`): a mover
