@@ -520,6 +520,52 @@ def test_14g_a_scene_side_candidate_too_costly_to_adopt_still_holds_a_sensor_eff
     assert best.name == "channel_gain"
 
 
+def test_14h_a_fold_fit_in_a_bad_basin_restarts_from_the_best_fold(monkeypatch):
+    """End to end through the fold fits (serial): a planted per-channel gain,
+    its fit on fold 0 made to end in a bad basin (its held-out and training
+    NLL raised by hand). The fold is fitted again from the best fold's
+    values and that fit replaces it, since it fits the training cells
+    better: the score is the one of three clean folds (the same fits,
+    within the optimiser's tolerance). When the bad fit claims the lower
+    training NLL, it stays, whatever it does on the held-out cells."""
+    from sionna_mmir.residual import ranking
+
+    radar = RadarConfig.awr1843(num_chirps=1, num_samples=64)   # one loop: no race
+    ctx = EffectContext(radar)
+    clean = _clean(radar)
+    rng = np.random.default_rng(3)
+    gt, gr = (np.exp(rng.normal(0, 0.2, n) + 1j * rng.uniform(-1, 1, n)) for n in (3, 4))
+    g = gt[:, None] * gr[None, :]                    # separable, as the effect models it
+    meas = clean * g[None, :, :, None, None] + _noise(clean.shape, 0.01, 4)
+    model = EffectModel(ctx, meas, clean)
+    folds = cv_folds(ctx.shape[:4], 3)
+    real = ranking._candidate_task
+    (honest,) = ranking.rank_candidates(model, [ChannelGain()], folds, maxiter=60)
+    assert min(honest.fold_gains) > 0
+
+    def stuck(train_shift):
+        calls = []
+
+        def task(shared, g_, k, eff, maxiter, deviation, i=0, start=None):
+            out = real(shared, g_, k, eff, maxiter, deviation, i, start)
+            calls.append((k, start is not None))
+            if k == 0 and start is None:             # the first fit of fold 0 ends badly
+                out["nll"] += 50.0                   # nats per held-out sample
+                out["train_nll"] += train_shift
+            return out
+        return task, calls
+
+    task, calls = stuck(+1.0)
+    monkeypatch.setattr(ranking, "_candidate_task", task)
+    (score,) = ranking.rank_candidates(model, [ChannelGain()], folds, maxiter=60)
+    assert calls == [(0, False), (1, False), (2, False), (0, True)]
+    assert score.gain == pytest.approx(honest.gain, rel=0.02)
+    task, calls = stuck(-1.0)                        # the bad fit fits training best
+    monkeypatch.setattr(ranking, "_candidate_task", task)
+    (score,) = ranking.rank_candidates(model, [ChannelGain()], folds, maxiter=60)
+    assert calls[-1] == (0, True) and score.fold_gains[0] < -max(score.fold_gains[1:])
+
+
 def test_14b_a_candidates_fitted_floor_is_held_against_its_gain():
     """The ranking takes the larger of an effect's own gain floor and the
     floor its fits called for (:attr:`CandidateScore.gain_floor`): a mover
