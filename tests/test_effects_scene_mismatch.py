@@ -234,6 +234,65 @@ def test_08_mesh_planes_are_the_large_flat_objects_in_the_radar_frame():
     assert np.dot(q, n) == pytest.approx(-2.5, abs=1e-9)       # 2.5 m from the radar
 
 
+def test_08b_a_point_seen_through_the_ground_is_refused():
+    """The same floor and wall: only the floor is ground (the wall faces
+    sideways), its two triangles 4 x 4 m centred 2 m ahead, 1 m below the
+    yawed radar. A point fitted 1 m under the floor, 2 m ahead, lies
+    behind it (``behind_ground``) and a missing scatterer there gets an
+    infinite floor; the same point above the floor, on the floor, and a
+    point under the floor's plane whose line of sight passes beside or
+    beyond the floor do not (hand geometry)."""
+    from types import SimpleNamespace
+
+    from sionna_mmir.effects import EffectContext
+    from sionna_mmir.effects.library.scatterer import MissingScatterer
+    from sionna_mmir.effects.scene_basis import behind_ground, mesh_grounds
+
+    def quad(corners):
+        return SimpleNamespace(vertex_positions=np.array(corners, float),
+                               faces=np.array([[0, 1, 2], [0, 2, 3]]))
+
+    objects = {"floor": quad([[0, -2, 0], [4, -2, 0], [4, 2, 0], [0, 2, 0]]),
+               "wall": quad([[0, 2.5, 0], [4, 2.5, 0], [4, 2.5, 3], [0, 2.5, 3]])}
+    yaw = np.radians(30.0)
+    radar = RadarConfig.awr1843(position=np.array([0.0, 0.0, 1.0]),
+                                orientation=np.array([yaw, 0.0, 0.0]))
+    grounds = mesh_grounds(objects, radar)
+    assert [g[0] for g in grounds] == ["floor"]
+    _, c, n, axes, tris = grounds[0]
+    to_radar = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0],
+                         [0, 0, 1]]).T                    # scene -> radar frame, by hand
+    assert c == pytest.approx(to_radar @ [2.0, 0.0, -1.0], abs=1e-9)
+    assert tris.shape == (2, 3, 2) and np.abs(axes @ n).max() < 1e-12
+
+    def at(x, y, z):                                  # a scene point in the radar frame
+        return to_radar @ np.array([x, y, z - 1.0])
+
+    assert behind_ground(at(2.0, 0.5, -1.0), grounds)
+    assert not behind_ground(at(2.0, 0.5, 0.5), grounds)
+    assert not behind_ground(at(2.0, 0.5, 0.0), grounds)        # on the floor
+    assert not behind_ground(at(2.0, 0.5, -0.2), grounds)       # within the margin
+    assert not behind_ground(at(9.0, 0.0, -0.5), grounds)       # crosses z = 0 at x = 6 m
+    assert behind_ground(at(2.0, 3.0, -1.0), grounds)           # crosses it at (1, 1.5)
+    assert not behind_ground(at(2.0, 5.0, -1.0), grounds)       # at (1, 2.5): beside it
+    assert not behind_ground(at(8.4, 0.0, -1.0), grounds)       # at (4.2, 0): beyond its edge
+
+    basis = SimpleNamespace(grounds=grounds)
+    model = SimpleNamespace(ctx=EffectContext(radar, basis=basis))
+    eff = MissingScatterer()
+
+    def floor_at(p):
+        r = np.linalg.norm(p)
+        az, el = np.degrees(np.arctan2(p[1], p[0])), np.degrees(np.arcsin(p[2] / r))
+        return eff.fitted_gain_floor(model, {"range": [r], "azimuth": [az], "elevation": [el],
+                                             "amp": [1.0, 0.0]})
+
+    assert floor_at(at(2.0, 0.5, -1.0)) == float("inf")
+    assert floor_at(at(2.0, 0.5, 0.5)) == eff.min_gain_per_sample
+    basis.grounds = []                                # a scene without ground refuses nothing
+    assert floor_at(at(2.0, 0.5, -1.0)) == eff.min_gain_per_sample
+
+
 @pytest.mark.parametrize("effect,steps,start", [
     ("PoseOffset", {"translation": 1e-4, "rotation": 1e-4},
      {"translation": [0.003, -0.002, 0.001], "rotation": [0.001, -0.002, 0.001]}),

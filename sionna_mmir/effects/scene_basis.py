@@ -83,6 +83,10 @@ class SceneBasis:
     #: large flat objects of the scene as ``[(name, point [3], unit normal [3])]``
     #: in the radar frame (:func:`mesh_planes`), e.g. for multipath ghosts
     planes: list = dataclasses.field(default_factory=list)
+    #: the scene's ground: flat objects below the radar that face up, as
+    #: rectangles in the radar frame (:func:`mesh_grounds`); nothing is seen
+    #: through them
+    grounds: list = dataclasses.field(default_factory=list)
 
     @property
     def num_components(self) -> int:
@@ -245,3 +249,86 @@ def mesh_planes(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> lis
         n = -n if np.dot(c, n) > 0 else n                              # towards the radar
         out.append((str(name), c, n))
     return out
+
+
+#: a flat object is ground when its upward normal is within this angle of
+#: the radar frame's +z [deg] (:func:`mesh_grounds`)
+GROUND_TILT_DEG = 30.0
+
+
+def mesh_grounds(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> list:
+    """The flat objects of a scene that are ground: below the radar, facing
+    up, as rectangles in the radar frame.
+
+    A floor or the ground is opaque at millimetre waves (concrete, soil,
+    asphalt), so nothing the radar sees lies behind it; what appears there
+    is a multipath image via the ground or a sensor artefact (a point fitted
+    there is refused: :meth:`~sionna_mmir.effects.library.scatterer.MissingScatterer.fitted_gain_floor`).
+    Walls are not included: plasterboard and glass pass 77 GHz.
+
+    Parameters
+    ----------
+    objects : dict
+        Name -> object with ``vertex_positions [V, 3]`` and ``faces [M, 3]``
+        (scene frame), e.g. :attr:`RadarScene.objects`.
+    radar : RadarConfig
+        Its ``position`` and ``orientation`` place the radar frame (+z up).
+    min_area, tol :
+        As :func:`mesh_planes`.
+
+    Returns
+    -------
+    list of (str, numpy.ndarray, numpy.ndarray, numpy.ndarray, numpy.ndarray)
+        ``(name, centre [3], unit normal [3] (up), in-plane axes [2, 3],
+        triangles [M, 3, 2])`` [m], radar frame: the object's triangles in
+        its plane, relative to the centre.
+    """
+    from ..radar.config import rotation_matrix
+
+    rot = rotation_matrix(radar.orientation)
+    cos_tilt = np.cos(np.radians(GROUND_TILT_DEG))
+    out = []
+    for name, c, n in mesh_planes(objects, radar, min_area, tol):
+        if n[2] < cos_tilt:                           # not facing up: a wall or a ceiling
+            continue
+        v = (np.asarray(objects[name].vertex_positions, float).reshape(-1, 3)
+             - np.asarray(radar.position, float)) @ rot
+        f = np.asarray(objects[name].faces, int).reshape(-1, 3)
+        axes = np.linalg.svd(np.vstack([n, np.zeros(3)]))[2][1:]   # two axes normal to n
+        out.append((str(name), c, n, axes, ((v - c) @ axes.T)[f]))
+    return out
+
+
+#: how far below the ground a fitted point must lie to count as seen
+#: through it [m] (:func:`behind_ground`): the suite's floor clutter is fitted
+#: within 0.1 m of the floor, a target's image via the floor lies as far
+#: below it as the target stands above (0.5-1.6 m in the suite's rooms and
+#: halls)
+GROUND_MARGIN_M = 0.3
+
+
+def behind_ground(point, grounds, margin: float = GROUND_MARGIN_M) -> bool:
+    """Whether the line of sight from the radar (the origin of the radar
+    frame) to ``point`` [3] crosses one of ``grounds`` (:func:`mesh_grounds`)
+    inside one of its triangles, the point more than ``margin`` [m] below it."""
+    p = np.asarray(point, float)
+    for _, c, n, axes, tris in grounds:
+        if np.dot(c - p, n) <= margin:           # not below the plane
+            continue
+        t = np.dot(c, n) / np.dot(p, n)          # the crossing, as a share of the way
+        if 0.0 < t < 1.0 and _in_triangles(axes @ (t * p - c), tris):
+            return True
+    return False
+
+
+def _in_triangles(q, tris, eps: float = 1e-9) -> bool:
+    """Whether the 2-D point ``q`` lies in one of ``tris [M, 3, 2]``."""
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+
+    def side(u, v):
+        return (v[:, 0] - u[:, 0]) * (q[1] - u[:, 1]) - (v[:, 1] - u[:, 1]) * (q[0] - u[:, 0])
+
+    s1, s2, s3 = side(a, b), side(b, c), side(c, a)
+    inside = ((s1 >= -eps) & (s2 >= -eps) & (s3 >= -eps)) | \
+             ((s1 <= eps) & (s2 <= eps) & (s3 <= eps))
+    return bool(np.any(inside))

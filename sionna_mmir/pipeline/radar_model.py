@@ -26,7 +26,7 @@ import numpy as np
 
 from ..effects import EffectContext, EffectModel
 from ..effects.library.scene_mismatch import BASE_REFINEMENT
-from ..effects.scene_basis import SceneBasis, mesh_planes
+from ..effects.scene_basis import SceneBasis, mesh_grounds, mesh_planes
 from ..errors import InputValueError
 from ..fit import MMIRModel
 from ..paths.options import SolverOptions
@@ -97,6 +97,7 @@ class RadarModel:
                                   "scene frame: +x boresight, +y left, +z up)")
         self.basis = SceneBasis.from_paths(paths, self.radar, max_objects=self.max_objects)
         self.basis.planes = mesh_planes(self.scene.mesh_objects, self.radar)
+        self.basis.grounds = mesh_grounds(self.scene.mesh_objects, self.radar)
         return self.basis
 
     def attach(self) -> EffectModel:
