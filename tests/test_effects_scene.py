@@ -589,6 +589,42 @@ def test_11e_a_far_ghost_inside_a_range_bin_is_found_by_its_angle():
     assert s["gamma_abs"] == pytest.approx(abs(gamma), rel=0.05)
 
 
+def test_11f_the_target_of_a_ghost_is_found_by_mirroring_the_residual_peak():
+    """A bright point 1.5 m ahead and a retro-reflector at 5 m, 0.9 m over
+    the floor, with its floor ghost (double bounce): searching only the
+    model's strongest point (``targets=1``) for a target, the ghost is
+    found by mirroring the residual's peak through the floor, whose image
+    of the 5 m target it is (target, floor and ``|Gamma|`` come back;
+    truth: the planted image, hand delays).  Without the scene's flat
+    objects the ghost is searched on the bright point and not found there."""
+    from sionna_mmir.effects.scene_basis import SceneBasis
+
+    radar = RadarConfig.awr1843(num_chirps=1)
+    rng = np.random.default_rng(8)
+    gamma = 0.6 * np.exp(0.5j)
+    target = np.array([5.0, -0.6, 0.0])
+    direct, full, noise = _ghost_capture(radar, gamma, rng, target=target, beta=0.0)
+    bright = direct_adc(radar, 8.0, point_target_delays(radar, np.array([1.5, 0.3, 0.0])))[None]
+    planes = [("floor", np.array([0.0, 0.0, -FLOOR_H]), np.array([0.0, 0.0, 1.0]))]
+    basis = SceneBasis(names=["target"], adc=direct, directions=np.array([[1.0, 0, 0]]),
+                       ranges=np.array([5.0]), offsets_tx=radar.tx_positions,
+                       offsets_rx=radar.rx_positions, rotation=np.eye(3),
+                       shares=np.array([1.0]), planes=planes)
+    for with_planes in (True, False):
+        basis.planes = planes if with_planes else []
+        ctx = EffectContext(radar, basis=basis)
+        m = EffectModel(ctx, full + bright + noise, direct + bright)
+        eff = MultipathGhost(targets=1, distances=(0.5, 1.5))
+        comp = m.add(eff)
+        m.fit()
+        s = eff.summary(comp.values, ctx)
+        on_target = np.linalg.norm(np.array(s["target_m"]) - target) < 0.1
+        assert on_target == with_planes, s
+        if with_planes:
+            assert s["plane_normal"] == pytest.approx([0, 0, 1], abs=1e-6)
+            assert s["gamma_abs"] == pytest.approx(abs(gamma), rel=0.05)
+
+
 def test_11c_ghost_searches_the_scenes_flat_objects_first():
     """With the scene's flat objects known (``SceneBasis.planes``), the ghost is
     searched about them: a floor ghost is found although the free search's

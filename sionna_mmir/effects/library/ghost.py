@@ -50,7 +50,7 @@ from .. import ops
 from ..base import Effect, ParamSpec
 from .scatterer import (C0, DrGeometry, _freq_terms, carrier_phase, dr_ref_phase, excess_np,
                         has_elevation_aperture, ref_phase_np, single_blas, static_view,
-                        strongest_points, unit_vectors)
+                        strongest_point, strongest_points, unit_vectors)
 
 dr, mi = ops.dr, ops.mi
 
@@ -215,6 +215,11 @@ def target_amplitude(x, ctx, p):
     return tuple(ops.view(dr.sum(c, axis=None), one) for c in prod)
 
 
+#: how far the model's point may lie from the mirrored residual peak, in
+#: direction, to be a ghost's target (:meth:`MultipathGhost._mirrored_targets`) [deg]
+MIRROR_TOLERANCE_DEG = 10.0
+
+
 class MultipathGhost(Effect):
     """Multipath ghost of one of the model's strongest scatterers via a flat surface
     (4 parameters).
@@ -278,6 +283,43 @@ class MultipathGhost(Effect):
         found = strongest_points(static_view(model), ctx, self.min_range, 0.95 * radar.max_range,
                                  has_elevation_aperture(radar), self.targets)
         return [(r * unit_vectors(az, el), a) for r, az, el, a in found]
+
+    def _mirrored_targets(self, ctx, model, z):
+        """``[(p [3] m, A_ref)]``: the model's points whose image via one of
+        the scene's flat objects lies at the residual's strongest point.
+
+        The model's few strongest points miss the target of a strong ghost
+        when that target is a corner reflector further out than brighter
+        clutter near the radar (the suite's AWR1843 room of seed 2: a corner
+        at 5.8 m, its floor image 1.1 m under the floor adopted as a missing
+        scatterer).  The residual's peak is mirrored through every flat
+        object it lies behind, and the model's strongest point within a
+        range bin of the mirror is taken when it lies within
+        :data:`MIRROR_TOLERANCE_DEG` of the mirror's direction."""
+        planes = getattr(ctx.basis, "planes", None) or []
+        if not planes:
+            return []
+        radar = ctx.radar
+        fit_el = has_elevation_aperture(radar)
+        rmax = 0.95 * radar.max_range
+        r, az, el, _ = strongest_point(z, ctx, self.min_range, rmax, fit_el)
+        peak = r * unit_vectors(az, el)
+        res, out = radar.range_resolution, []
+        for _, q, n in planes:
+            depth = np.dot(peak - np.asarray(q, float), n)
+            if depth > -0.05:                         # the peak is not behind this plane
+                continue
+            mirror = peak - 2.0 * depth * np.asarray(n, float)
+            rm = float(np.linalg.norm(mirror))
+            if not self.min_range + res <= rm <= rmax - res:
+                continue
+            (rt, azt, elt, a), = strongest_points(static_view(model), ctx, rm - res, rm + res,
+                                                  fit_el, 1)
+            p = rt * unit_vectors(azt, elt)
+            cos = np.dot(p, mirror) / (np.linalg.norm(p) * rm)
+            if cos >= np.cos(np.radians(MIRROR_TOLERANCE_DEG)):
+                out.append((p, a))
+        return out
 
     def _candidates(self, ctx, p, step):
         """``[(q, n, offsets)]`` to score: the given plane +- max_offset; else the
@@ -344,7 +386,7 @@ class MultipathGhost(Effect):
     def param_specs(self, ctx, model, residual):
         z = static_view(residual)
         best = None
-        for p, a in self._targets(ctx, model):
+        for p, a in self._targets(ctx, model) + self._mirrored_targets(ctx, model, z):
             found = self._search(ctx, z, p, a)
             if found is not None and (best is None or found[0] > best[0][0]):
                 best = (found, p, a)
