@@ -419,6 +419,16 @@ def _ghost_capture(radar, gamma, rng, target=TARGET, h=FLOOR_H, a=np.exp(0.3j), 
     return direct, full, _noise(full.shape, rng)
 
 
+def _one_object_basis(radar, adc, range_m, planes):
+    """A ``SceneBasis`` of one object ahead (``adc``) with the flat objects ``planes``."""
+    from sionna_mmir.effects.scene_basis import SceneBasis
+
+    return SceneBasis(names=["target"], adc=adc, directions=np.array([[1.0, 0, 0]]),
+                      ranges=np.array([range_m]), offsets_tx=radar.tx_positions,
+                      offsets_rx=radar.rx_positions, rotation=np.eye(3),
+                      shares=np.array([1.0]), planes=planes)
+
+
 def _fitted_ghost(ctx, meas, model):
     """``(EffectModel, summary)`` of a default ``MultipathGhost`` fitted on ``meas`` over ``model``."""
     m = EffectModel(ctx, meas, model)
@@ -597,8 +607,6 @@ def test_11f_the_target_of_a_ghost_is_found_by_mirroring_the_residual_peak():
     of the 5 m target it is (target, floor and ``|Gamma|`` come back;
     truth: the planted image, hand delays).  Without the scene's flat
     objects the ghost is searched on the bright point and not found there."""
-    from sionna_mmir.effects.scene_basis import SceneBasis
-
     radar = RadarConfig.awr1843(num_chirps=1)
     rng = np.random.default_rng(8)
     gamma = 0.6 * np.exp(0.5j)
@@ -606,10 +614,7 @@ def test_11f_the_target_of_a_ghost_is_found_by_mirroring_the_residual_peak():
     direct, full, noise = _ghost_capture(radar, gamma, rng, target=target, beta=0.0)
     bright = direct_adc(radar, 8.0, point_target_delays(radar, np.array([1.5, 0.3, 0.0])))[None]
     planes = [("floor", np.array([0.0, 0.0, -FLOOR_H]), np.array([0.0, 0.0, 1.0]))]
-    basis = SceneBasis(names=["target"], adc=direct, directions=np.array([[1.0, 0, 0]]),
-                       ranges=np.array([5.0]), offsets_tx=radar.tx_positions,
-                       offsets_rx=radar.rx_positions, rotation=np.eye(3),
-                       shares=np.array([1.0]), planes=planes)
+    basis = _one_object_basis(radar, direct, 5.0, planes)
     for with_planes in (True, False):
         basis.planes = planes if with_planes else []
         ctx = EffectContext(radar, basis=basis)
@@ -630,18 +635,13 @@ def test_11c_ghost_searches_the_scenes_flat_objects_first():
     searched about them: a floor ghost is found although the free search's
     distances (1.5-4 m) exclude the floor 0.9 m down (truth: the planted
     floor and its double-bounce-only ghost, hand delays)."""
-    from sionna_mmir.effects.scene_basis import SceneBasis
-
     radar = RadarConfig.awr1843(num_chirps=1)
     rng = np.random.default_rng(12)
     gamma = 0.6 * np.exp(-0.4j)
     direct, full, noise = _ghost_capture(radar, gamma, rng, beta=0.0)
     planes = [("floor", np.array([0.0, 0.0, -FLOOR_H]), np.array([0.0, 0.0, 1.0])),
               ("wall", np.array([0.0, 2.5, 0.0]), np.array([0.0, -1.0, 0.0]))]
-    basis = SceneBasis(names=["target"], adc=direct, directions=np.array([[1.0, 0, 0]]),
-                       ranges=np.array([3.5]), offsets_tx=radar.tx_positions,
-                       offsets_rx=radar.rx_positions, rotation=np.eye(3),
-                       shares=np.array([1.0]), planes=planes)
+    basis = _one_object_basis(radar, direct, 3.5, planes)
     for with_planes in (True, False):
         basis.planes = planes if with_planes else []
         ctx = EffectContext(radar, basis=basis)

@@ -432,6 +432,24 @@ def test_13_the_simpler_of_two_sensor_effects_that_explain_the_same_is_adopted(p
         assert gains["delay_offset"] > gains["frequency_offset"] > 0.9 * gains["delay_offset"]
 
 
+class _FixedTiers:
+    """Stand-in for ``ranking._Tiers`` with fixed ``{name: (gain, n_params)}``
+    held-out gains, one held-out sample each (penalty 1 nat a parameter)."""
+
+    def __init__(self, gains):
+        self.model = type("M", (), {"ctx": None})()
+        self.gains = gains
+
+    def rank(self, group, penalty, maxiter, progress):
+        from sionna_mmir.residual.ranking import CandidateScore
+
+        return [CandidateScore(e.name, n, g, g / 1e4, g - n, [g])
+                for e in group for (name, (g, n)) in self.gains.items() if name == e.name]
+
+    def on_one_scale(self, ranking, best, *args):
+        return ranking, best
+
+
 def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
     """``_rank_round`` on fixed held-out gains: a sensor effect that beats the
     best scene-side candidate by less than ``SCENE_MARGIN`` of its gain gives
@@ -441,19 +459,7 @@ def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
     from sionna_mmir.effects.library.coupling import Coupling
     from sionna_mmir.effects.library.delay_offset import DelayOffset
     from sionna_mmir.effects.library.frequency_offset import FrequencyOffset
-    from sionna_mmir.residual.ranking import SCENE_MARGIN, CandidateScore, _rank_round
-
-    class Tiers:                                     # fixed gains, one held-out sample each
-        def __init__(self, gains):
-            self.model = type("M", (), {"ctx": None})()
-            self.gains = gains
-
-        def rank(self, group, penalty, maxiter, progress):
-            return [CandidateScore(e.name, n, g, g / 1e4, g - n, [g])
-                    for e in group for (name, (g, n)) in self.gains.items() if name == e.name]
-
-        def on_one_scale(self, ranking, best, *args):
-            return ranking, best
+    from sionna_mmir.residual.ranking import SCENE_MARGIN, _rank_round
 
     pool = [ChannelGain(), MissingScatterer(), DelayOffset(), FrequencyOffset(), Coupling()]
     for c in pool:
@@ -469,10 +475,10 @@ def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
              ({"delay_offset": (1000, 28), "frequency_offset": (850, 4),
                "missing_scatterer": (100, 5)}, "delay_offset")]
     for gains, expected in cases:
-        _, best = _rank_round(Tiers(gains), pool, 1.0, 10, None, 0.0, set())
+        _, best = _rank_round(_FixedTiers(gains), pool, 1.0, 10, None, 0.0, set())
         assert best.name == expected, (gains, best.name)
     pool[1].gain_floor = lambda ctx: 1.0             # the scatterer is not acceptable
-    _, best = _rank_round(Tiers(cases[0][0]), pool, 1.0, 10, None, 0.0, set())
+    _, best = _rank_round(_FixedTiers(cases[0][0]), pool, 1.0, 10, None, 0.0, set())
     assert best.name == "channel_gain"
 
 
@@ -486,19 +492,7 @@ def test_14g_a_scene_side_candidate_too_costly_to_adopt_still_holds_a_sensor_eff
     gain is adopted in the first case."""
     from sionna_mmir.effects.library.coupling import Coupling
     from sionna_mmir.effects.library.scene_mismatch import ObjectPattern
-    from sionna_mmir.residual.ranking import CandidateScore, _rank_round
-
-    class Tiers:                                     # fixed gains, one held-out sample each
-        def __init__(self, gains):
-            self.model = type("M", (), {"ctx": None})()
-            self.gains = gains
-
-        def rank(self, group, penalty, maxiter, progress):
-            return [CandidateScore(e.name, n, g, g / 1e4, g - n, [g])
-                    for e in group for (name, (g, n)) in self.gains.items() if name == e.name]
-
-        def on_one_scale(self, ranking, best, *args):
-            return ranking, best
+    from sionna_mmir.residual.ranking import _rank_round
 
     pool = [ChannelGain(), MissingScatterer(), ObjectPattern(), Coupling()]
     for c in pool:
@@ -513,10 +507,10 @@ def test_14g_a_scene_side_candidate_too_costly_to_adopt_still_holds_a_sensor_eff
              ({"channel_gain": gain, "object_pattern": (90.0, 420)}, "channel_gain"),
              ({"channel_gain": gain, "object_pattern": (146.5, 100)}, "object_pattern")]
     for gains, expected in cases:
-        _, best = _rank_round(Tiers(gains), pool, 1.0, 10, None, 0.0, set())
+        _, best = _rank_round(_FixedTiers(gains), pool, 1.0, 10, None, 0.0, set())
         assert (best and best.name) == expected, (gains, best)
     pool[2].gain_floor = lambda ctx: 1.0             # patterns under their floor do not count
-    _, best = _rank_round(Tiers(cases[0][0]), pool, 1.0, 10, None, 0.0, set())
+    _, best = _rank_round(_FixedTiers(cases[0][0]), pool, 1.0, 10, None, 0.0, set())
     assert best.name == "channel_gain"
 
 

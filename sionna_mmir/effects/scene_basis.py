@@ -208,6 +208,16 @@ def _choose(parts, max_objects, min_share):
     return [parts[i] for i in keep], [parts[i] for i in range(len(parts)) if i not in keep]
 
 
+def _in_radar_frame(obj, radar):
+    """``(vertices [V, 3], faces [M, 3])`` of a mesh object, the vertices in
+    ``radar``'s frame (its ``position`` and ``orientation``) [m]."""
+    from ..radar.config import rotation_matrix
+
+    v = np.asarray(obj.vertex_positions, float).reshape(-1, 3)
+    f = np.asarray(obj.faces, int).reshape(-1, 3)
+    return (v - np.asarray(radar.position, float)) @ rotation_matrix(radar.orientation), f
+
+
 def mesh_planes(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> list:
     """Large flat objects of a scene as planes in the radar frame.
 
@@ -230,16 +240,11 @@ def mesh_planes(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> lis
         ``(name, point [3], unit normal [3])``, radar frame, the normal
         pointing to the radar's side.
     """
-    from ..radar.config import rotation_matrix
-
-    rot = rotation_matrix(radar.orientation)
     out = []
     for name, obj in objects.items():
-        v = np.asarray(obj.vertex_positions, float).reshape(-1, 3)
-        f = np.asarray(obj.faces, int).reshape(-1, 3)
+        v, f = _in_radar_frame(obj, radar)
         if len(v) < 3 or not len(f):
             continue
-        v = (v - np.asarray(radar.position, float)) @ rot             # radar frame
         c = v.mean(axis=0)
         n = np.linalg.svd(v - c, full_matrices=False)[2][-1]
         area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]),
@@ -258,7 +263,7 @@ GROUND_TILT_DEG = 30.0
 
 def mesh_grounds(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> list:
     """The flat objects of a scene that are ground: below the radar, facing
-    up, as rectangles in the radar frame.
+    up, as triangles in the radar frame.
 
     A floor or the ground is opaque at millimetre waves (concrete, soil,
     asphalt), so nothing the radar sees lies behind it; what appears there
@@ -266,15 +271,7 @@ def mesh_grounds(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> li
     there is refused: :meth:`~sionna_mmir.effects.library.scatterer.MissingScatterer.fitted_gain_floor`).
     Walls are not included: plasterboard and glass pass 77 GHz.
 
-    Parameters
-    ----------
-    objects : dict
-        Name -> object with ``vertex_positions [V, 3]`` and ``faces [M, 3]``
-        (scene frame), e.g. :attr:`RadarScene.objects`.
-    radar : RadarConfig
-        Its ``position`` and ``orientation`` place the radar frame (+z up).
-    min_area, tol :
-        As :func:`mesh_planes`.
+    Parameters are those of :func:`mesh_planes` (the radar frame's +z is up).
 
     Returns
     -------
@@ -283,17 +280,12 @@ def mesh_grounds(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> li
         triangles [M, 3, 2])`` [m], radar frame: the object's triangles in
         its plane, relative to the centre.
     """
-    from ..radar.config import rotation_matrix
-
-    rot = rotation_matrix(radar.orientation)
     cos_tilt = np.cos(np.radians(GROUND_TILT_DEG))
     out = []
     for name, c, n in mesh_planes(objects, radar, min_area, tol):
         if n[2] < cos_tilt:                           # not facing up: a wall or a ceiling
             continue
-        v = (np.asarray(objects[name].vertex_positions, float).reshape(-1, 3)
-             - np.asarray(radar.position, float)) @ rot
-        f = np.asarray(objects[name].faces, int).reshape(-1, 3)
+        v, f = _in_radar_frame(objects[name], radar)
         axes = np.linalg.svd(np.vstack([n, np.zeros(3)]))[2][1:]   # two axes normal to n
         out.append((str(name), c, n, axes, ((v - c) @ axes.T)[f]))
     return out
