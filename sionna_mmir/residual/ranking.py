@@ -484,7 +484,7 @@ def _restarts(fits: dict, bases: list) -> list:
     corners), and one fold's fit can end in a basin the others avoid: on
     the suite's AWR1843 halls the leakage beside an adopted IF filter
     gained 523 and 629 held-out nats in two folds and lost 1 713 in the
-    third, and was not adopted.  Which of the two fits of a fold counts is
+    other, and was not adopted.  Which of the two fits of a fold counts is
     decided by the training NLL alone (:func:`_pick_fit`), so the held-out
     cells choose nothing; only the starting point comes from a fit that saw
     them.  ``fits``: ``{fold: result}`` of :func:`_candidate_task`, every
