@@ -84,7 +84,7 @@ class SceneBasis:
     #: in the radar frame (:func:`mesh_planes`), e.g. for multipath ghosts
     planes: list = dataclasses.field(default_factory=list)
     #: the scene's ground: flat objects below the radar that face up, as
-    #: rectangles in the radar frame (:func:`mesh_grounds`); nothing is seen
+    #: triangles in the radar frame (:func:`mesh_grounds`); nothing is seen
     #: through them
     grounds: list = dataclasses.field(default_factory=list)
 
@@ -261,7 +261,7 @@ def mesh_planes(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> lis
 GROUND_TILT_DEG = 30.0
 
 
-def mesh_grounds(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> list:
+def mesh_grounds(objects, radar, planes=None) -> list:
     """The flat objects of a scene that are ground: below the radar, facing
     up, as triangles in the radar frame.
 
@@ -271,7 +271,12 @@ def mesh_grounds(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> li
     there is refused: :meth:`~sionna_mmir.effects.library.scatterer.MissingScatterer.fitted_gain_floor`).
     Walls are not included: plasterboard and glass pass 77 GHz.
 
-    Parameters are those of :func:`mesh_planes` (the radar frame's +z is up).
+    Parameters
+    ----------
+    objects, radar :
+        As :func:`mesh_planes` (the radar frame's +z is up).
+    planes : list, optional
+        ``mesh_planes(objects, radar)`` when already at hand.
 
     Returns
     -------
@@ -282,7 +287,7 @@ def mesh_grounds(objects, radar, min_area: float = 1.0, tol: float = 0.02) -> li
     """
     cos_tilt = np.cos(np.radians(GROUND_TILT_DEG))
     out = []
-    for name, c, n in mesh_planes(objects, radar, min_area, tol):
+    for name, c, n in mesh_planes(objects, radar) if planes is None else planes:
         if n[2] < cos_tilt:                           # not facing up: a wall or a ceiling
             continue
         v, f = _in_radar_frame(objects[name], radar)

@@ -97,7 +97,8 @@ class RadarModel:
                                   "scene frame: +x boresight, +y left, +z up)")
         self.basis = SceneBasis.from_paths(paths, self.radar, max_objects=self.max_objects)
         self.basis.planes = mesh_planes(self.scene.mesh_objects, self.radar)
-        self.basis.grounds = mesh_grounds(self.scene.mesh_objects, self.radar)
+        self.basis.grounds = mesh_grounds(self.scene.mesh_objects, self.radar,
+                                          self.basis.planes)
         return self.basis
 
     def attach(self) -> EffectModel:

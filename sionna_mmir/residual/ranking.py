@@ -502,9 +502,12 @@ def _pick_fit(old: dict | None, new: dict) -> dict:
     """Of two fits of one (candidate, fold), the one with the lower training
     NLL (a restart replaces the first fit only when it fits the training
     cells better)."""
-    if old is None or not new.get("restart"):
-        return new if old is None or not old.get("restart") else old
-    return new if new["train_nll"] < old["train_nll"] else old
+    if old is None:
+        return new
+    first, again = (old, new) if new.get("restart") else (new, old)
+    if not again.get("restart"):                 # the same fit twice (a worker died)
+        return new
+    return again if again["train_nll"] < first["train_nll"] else first
 
 
 def _refit_base(base, eff, train, maxiter: int) -> dict:
