@@ -201,6 +201,29 @@ def test_07_object_shift_recovers_a_lateral_offset_that_channel_gains_cannot():
     assert np.abs(s[[0, 2]]).max() < 1e-3
 
 
+def test_07b_a_pattern_fitted_on_one_object_predicts_the_next_only_when_it_is_the_sensors():
+    """A held-out object (:func:`~sionna_mmir.residual.object_transfer.held_out_object_gain`):
+    with a per-channel gain planted on every point, the strongest point's
+    fitted pattern lowers the next point's NLL by far more than the gain's
+    14 parameters cost; with the same gain on the strongest point alone (a
+    scene mismatch of that object) it raises it."""
+    from sionna_mmir.residual.object_transfer import held_out_object_gain
+    from sionna_mmir.residual.ranking import BIC, penalty_per_param
+
+    radar = _radar(chirps=1)
+    B = _adc(radar, TARGETS, np.array([3.0, 1.0, 1.0]))
+    rng = np.random.default_rng(7)
+    gt, gr = (np.exp(rng.normal(0, 0.12, n) + 1j * rng.uniform(-0.5, 0.5, n)) for n in (3, 4))
+    g = (gt[:, None] * gr[None, :])[:, :, None, None]
+    std = 0.02 * np.sqrt(np.mean(np.abs(B[1]) ** 2))           # the weak points 34 dB over it
+    cost = penalty_per_param(BIC, B[0].size) * 14
+    noise = _noise(B.shape[1:], std, 1)
+    common = _model(radar, (B * g).sum(axis=0) + noise, _basis(radar, B, TARGETS))
+    own = _model(radar, B[0] * g + B[1] + B[2] + noise, _basis(radar, B, TARGETS))
+    assert held_out_object_gain(common, ObjectPattern()) > 10 * cost
+    assert held_out_object_gain(own, ObjectPattern()) < 0
+
+
 def test_08_mesh_planes_are_the_large_flat_objects_in_the_radar_frame():
     """A floor, a wall, a small plate and a trihedral seen from a radar 1 m up,
     yawed 30 deg: the floor and the wall come back as planes in the radar

@@ -436,9 +436,12 @@ class _FixedTiers:
     """Stand-in for ``ranking._Tiers`` with fixed ``{name: (gain, n_params)}``
     held-out gains, one held-out sample each (penalty 1 nat a parameter)."""
 
-    def __init__(self, gains):
+    def __init__(self, gains, shared=None):
         self.model = type("M", (), {"ctx": None})()
-        self.gains = gains
+        self.gains, self.shared = gains, shared or {}
+
+    def shared_score(self, effect, n_params, penalty, maxiter):
+        return self.shared.get(effect.name, -np.inf)
 
     def rank(self, group, penalty, maxiter, progress):
         from sionna_mmir.residual.ranking import CandidateScore
@@ -511,6 +514,33 @@ def test_14g_a_scene_side_candidate_too_costly_to_adopt_still_holds_a_sensor_eff
         assert (best and best.name) == expected, (gains, best)
     pool[2].gain_floor = lambda ctx: 1.0             # patterns under their floor do not count
     _, best = _rank_round(_FixedTiers(cases[0][0]), pool, 1.0, 10, None, 0.0, set())
+    assert best.name == "channel_gain"
+
+
+def test_14i_a_gain_the_objects_agree_on_is_not_held_back_by_their_patterns():
+    """``_rank_round`` on fixed held-out gains (the seed-3 room's first round:
+    a per-channel gain 6 021 nats with 14 parameters, object patterns 5 572
+    with 28, inside the scene margin): the gain is held back for the patterns
+    while the strongest object's pattern does not predict the others
+    (``shared_score`` <= 0), and adopted when it does; the measured score is
+    kept on the patterns' entry.  Without the held-out-object test the
+    patterns are adopted either way."""
+    from sionna_mmir.effects.library.scene_mismatch import ObjectPattern
+    from sionna_mmir.residual.ranking import _rank_round
+
+    pool = [ChannelGain(), ObjectPattern(), MissingScatterer()]
+    for c in pool:
+        c.gain_floor = lambda ctx: 0.0
+    gains = {"channel_gain": (6021.0, 14), "object_pattern": (5572.0, 28)}
+    for shared, expected in ((-7.0, "object_pattern"), (179.0, "channel_gain")):
+        ranking, best = _rank_round(_FixedTiers(gains, {"object_pattern": shared}), pool, 1.0,
+                                    10, None, 0.0, set())
+        assert best.name == expected
+        (pattern,) = [c for c in ranking if c.name == "object_pattern"]
+        assert pattern.shared_score == shared
+    gains["missing_scatterer"] = (5500.0, 5)          # another scene-side candidate in reach
+    _, best = _rank_round(_FixedTiers(gains, {"object_pattern": 179.0}), pool, 1.0, 10, None,
+                          0.0, set())
     assert best.name == "channel_gain"
 
 

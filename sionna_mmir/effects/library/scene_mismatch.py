@@ -306,9 +306,29 @@ class ObjectPattern(BasisEffect):
     name = "object_pattern"
     description = "per-object aspect pattern across the aperture (per-Tx x per-Rx gain)"
 
+    #: the sensor effect one pattern shared by every object is: a per-Tx x
+    #: per-Rx gain of the whole scene (:func:`~sionna_mmir.residual.object_transfer.held_out_object_gain`)
+    shared_twin = "channel_gain"
+
     def __init__(self, min_share: float = 0.05, max_objects: int = 3):
         self.min_share = float(min_share)
         self.max_objects = int(max_objects)
+
+    def on_lead(self) -> "ObjectPattern":
+        """The same kind of pattern on the strongest object only."""
+        return ObjectPattern(self.min_share, max_objects=1)
+
+    def shared(self, comp, ctx, objects) -> tuple:
+        """``(effect, specs, values)``: the pattern ``comp`` holds for its one
+        object (an :meth:`on_lead` component) given unchanged to each of
+        ``objects`` (component indices), as the sensor's per-channel gain
+        would be."""
+        (lead,) = self.objects(ctx)
+        every = ObjectPattern(0.0, len(objects))
+        every._objects = [int(o) for o in objects]
+        keys = [(f"{p}{o}", f"{p}{lead}") for o in every._objects for p in ("tx", "rx")]
+        return (every, {k: comp.specs[src] for k, src in keys},
+                {k: np.array(comp.values[src], copy=True) for k, src in keys})
 
     def objects(self, ctx) -> list:
         """Indices of the components that get a pattern: the strongest in the
