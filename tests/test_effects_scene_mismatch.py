@@ -205,8 +205,9 @@ def test_07b_a_pattern_fitted_on_one_object_predicts_the_next_only_when_it_is_th
     """A held-out object (:func:`~sionna_mmir.residual.object_transfer.held_out_object_gain`):
     with a per-channel gain planted on every point, the strongest point's
     fitted pattern lowers the next point's NLL by far more than the gain's
-    14 parameters cost; with the same gain on the strongest point alone (a
-    scene mismatch of that object) it raises it."""
+    14 parameters cost, and by nearly what that point's own pattern does;
+    with the same gain on the strongest point alone (a scene mismatch of
+    that object) it raises it."""
     from sionna_mmir.residual.object_transfer import held_out_object_gain
     from sionna_mmir.residual.ranking import BIC, penalty_per_param
 
@@ -220,8 +221,10 @@ def test_07b_a_pattern_fitted_on_one_object_predicts_the_next_only_when_it_is_th
     noise = _noise(B.shape[1:], std, 1)
     common = _model(radar, (B * g).sum(axis=0) + noise, _basis(radar, B, TARGETS))
     own = _model(radar, B[0] * g + B[1] + B[2] + noise, _basis(radar, B, TARGETS))
-    assert held_out_object_gain(common, ObjectPattern()) > 10 * cost
-    assert held_out_object_gain(own, ObjectPattern()) < 0
+    shared, alone = held_out_object_gain(common, ObjectPattern())
+    assert shared > 10 * cost and shared > 0.95 * alone
+    shared, alone = held_out_object_gain(own, ObjectPattern())
+    assert shared < 0 <= alone
 
 
 def test_08_mesh_planes_are_the_large_flat_objects_in_the_radar_frame():
