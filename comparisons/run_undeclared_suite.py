@@ -193,9 +193,9 @@ def _previous_rows(out: str) -> list:
 def _reproduce_line(args) -> str:
     """The header's "Reproduce:" line: this invocation's command, or with
     ``--merge`` the line the folder's suite.md already has (its rows come from
-    several invocations)."""
-    if args.merge:
-        path = os.path.join(args.out, "suite.md")
+    several invocations), else the first merged folder's."""
+    for folder in ([args.out] + list(args.merge)) if args.merge else []:
+        path = os.path.join(folder, "suite.md")
         if os.path.exists(path):
             with open(path) as f:
                 old = [ln.rstrip("\n") for ln in f if ln.startswith("Reproduce: ")]
