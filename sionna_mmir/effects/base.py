@@ -105,6 +105,11 @@ class Effect:
     #: (held at their values otherwise): what already took part of its
     #: signature without making it redundant
     refit_beside = ()
+    #: for a scene-side effect: the name of the sensor effect it is when one
+    #: set of its parameters is shared by every object (per-object patterns
+    #: and a per-channel gain); the residual loop asks a held-out object
+    #: which of the two a residual is (:mod:`~sionna_mmir.residual.object_transfer`)
+    shared_twin = None
     #: applying it commutes with averaging over chirp loops and its parameters
     #: mean the same on averaged data (a static, linear effect); the residual
     #: loop scores such candidates on chirp-averaged data

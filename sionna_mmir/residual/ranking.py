@@ -978,7 +978,7 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
     tested = {}                  # scene-side name -> object_test (measured once a round)
 
     def common(b, c):
-        if getattr(effects.get(c.name), "shared_twin", None) != b.name:
+        if c.name not in effects or effects[c.name].shared_twin != b.name:
             return False
         if c.name not in tested:
             tested[c.name] = tiers.object_test(effects[c.name], b.n_params, penalty, maxiter)

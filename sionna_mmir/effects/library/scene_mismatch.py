@@ -306,8 +306,8 @@ class ObjectPattern(BasisEffect):
     name = "object_pattern"
     description = "per-object aspect pattern across the aperture (per-Tx x per-Rx gain)"
 
-    #: the sensor effect one pattern shared by every object is: a per-Tx x
-    #: per-Rx gain of the whole scene (:func:`~sionna_mmir.residual.object_transfer.held_out_object_gain`)
+    #: one pattern shared by every object is a per-Tx x per-Rx gain of the
+    #: whole scene (:func:`~sionna_mmir.residual.object_transfer.held_out_object_gain`)
     shared_twin = "channel_gain"
 
     def __init__(self, min_share: float = 0.05, max_objects: int = 3):
