@@ -207,7 +207,7 @@ def test_07b_a_pattern_fitted_on_one_object_predicts_the_next_only_when_it_is_th
     fitted pattern lowers the next point's NLL by far more than the gain's
     14 parameters cost, and by nearly what that point's own pattern does;
     with the same gain on the strongest point alone (a scene mismatch of
-    that object) it raises it."""
+    that object) it raises it.  With one object there is nothing to ask."""
     from sionna_mmir.residual.object_transfer import held_out_object_gain
     from sionna_mmir.residual.ranking import BIC, penalty_per_param
 
@@ -225,6 +225,8 @@ def test_07b_a_pattern_fitted_on_one_object_predicts_the_next_only_when_it_is_th
     assert shared > 10 * cost and shared > 0.95 * alone
     shared, alone = held_out_object_gain(own, ObjectPattern())
     assert shared < 0 <= alone
+    single = _model(radar, B[0] * g + noise, _basis(radar, B[:1], TARGETS[:1]))
+    assert held_out_object_gain(single, ObjectPattern()) == (-np.inf, 0.0)   # no object to ask
 
 
 def test_08_mesh_planes_are_the_large_flat_objects_in_the_radar_frame():
