@@ -852,12 +852,11 @@ MAX_CHIRP_MEMORY = 0.3
 #: parameter penalty on the second strongest object ...
 OBJECT_EVIDENCE = 2.0
 #: ... and at least this share of what that object's own pattern gains.
-#: Measured (:mod:`~.object_transfer`): shares 0.89-0.99 and gains 2.8-36
-#: penalties with a planted gain (four captures); without one at most 0.76
-#: of the own gain where the gain exceeds one penalty (0.43 on the
-#: cascade's clean room, 3.5 penalties) and under one penalty elsewhere
-#: (nine AWR1843 captures).  A wrong release puts a sensor effect on a
-#: clean capture.
+#: Measured (:mod:`~.object_transfer`): shares 0.89-0.99 and gains of 5.7-72
+#: penalties with a planted gain (four captures); without one, 0.43 of the
+#: own gain on the cascade's clean room (6.9 penalties) and under one
+#: penalty on nine AWR1843 captures.  A wrong release puts a sensor effect
+#: on a clean capture.
 OBJECT_AGREEMENT = 0.8
 
 
