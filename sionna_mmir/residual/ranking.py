@@ -984,7 +984,6 @@ def _rank_round(tiers, pool, penalty, maxiter, progress, min_gain, screened, vet
         return required_slot_share(int(np.prod(shape[:4])) // shape[2])
 
     held = set()                 # sensor effects a costlier scene-side candidate out-predicts
-    effects = {c.name: c for c in pool}
     tested = {}                  # scene-side name -> object_test (measured once a round)
 
     def common(b):
