@@ -432,6 +432,14 @@ def test_13_the_simpler_of_two_sensor_effects_that_explain_the_same_is_adopted(p
         assert gains["delay_offset"] > gains["frequency_offset"] > 0.9 * gains["delay_offset"]
 
 
+def _floorless(*effects) -> list:
+    """``effects`` as a candidate pool without gain floors (every held-out
+    gain counts), for ranking tests on fixed scores."""
+    for e in effects:
+        e.gain_floor = lambda ctx: 0.0
+    return list(effects)
+
+
 class _FixedTiers:
     """Stand-in for ``ranking._Tiers`` with fixed ``{name: (gain, n_params)}``
     held-out gains, one held-out sample each (penalty 1 nat a parameter)."""
@@ -464,9 +472,8 @@ def test_14_a_sensor_effect_must_beat_the_scene_side_by_a_margin():
     from sionna_mmir.effects.library.frequency_offset import FrequencyOffset
     from sionna_mmir.residual.ranking import SCENE_MARGIN, _rank_round
 
-    pool = [ChannelGain(), MissingScatterer(), DelayOffset(), FrequencyOffset(), Coupling()]
-    for c in pool:
-        c.gain_floor = lambda ctx: 0.0
+    pool = _floorless(ChannelGain(), MissingScatterer(), DelayOffset(), FrequencyOffset(),
+                      Coupling())
     just_under = (1 - SCENE_MARGIN) * 1000 - 5
     cases = [({"channel_gain": (1000, 14), "missing_scatterer": (just_under + 10, 5)},
               "missing_scatterer"),
@@ -497,9 +504,7 @@ def test_14g_a_scene_side_candidate_too_costly_to_adopt_still_holds_a_sensor_eff
     from sionna_mmir.effects.library.scene_mismatch import ObjectPattern
     from sionna_mmir.residual.ranking import _rank_round
 
-    pool = [ChannelGain(), MissingScatterer(), ObjectPattern(), Coupling()]
-    for c in pool:
-        c.gain_floor = lambda ctx: 0.0
+    pool = _floorless(ChannelGain(), MissingScatterer(), ObjectPattern(), Coupling())
     gain, patterns = (107.4, 14), (146.5, 420)       # the hall's clean control, parameters x10
     cases = [({"channel_gain": gain, "object_pattern": patterns}, None),
              ({"channel_gain": gain, "object_pattern": patterns, "missing_scatterer": (30, 5)},
@@ -532,9 +537,7 @@ def test_14i_a_gain_the_objects_agree_on_is_not_held_back_by_their_patterns():
     from sionna_mmir.effects.library.scene_mismatch import ObjectPattern
     from sionna_mmir.residual.ranking import _rank_round
 
-    pool = [ChannelGain(), ObjectPattern(), MissingScatterer()]
-    for c in pool:
-        c.gain_floor = lambda ctx: 0.0
+    pool = _floorless(ChannelGain(), ObjectPattern(), MissingScatterer())
     gains = {"channel_gain": (6021.0, 14), "object_pattern": (5572.0, 28)}
     for shared, own, expected in ((1025.0, 1032.0, "channel_gain"), (-89.0, 9.0, "object_pattern"),
                                   (20.0, 21.0, "object_pattern"),
@@ -571,16 +574,12 @@ def test_14j_a_gain_that_leads_must_still_be_shared_by_the_objects():
                                   (-5.0, 9.0, "object_pattern"),
                                   (430.0, 1000.0, "object_pattern"),
                                   (-np.inf, 0.0, "channel_gain")):
-        pool = [ChannelGain(), ObjectPattern(), MissingScatterer()]
-        for c in pool:
-            c.gain_floor = lambda ctx: 0.0
+        pool = _floorless(ChannelGain(), ObjectPattern(), MissingScatterer())
         test = {"shared": shared, "own": own, "penalty": 14.0}
         ranking, best = _rank_round(_FixedTiers(gains, {"object_pattern": test}), pool, 1.0,
                                     10, None, 0.0, set())
         assert best.name == expected, (shared, own, best)
-    pool = [ChannelGain(), MissingScatterer()]            # no twin to ask
-    for c in pool:
-        c.gain_floor = lambda ctx: 0.0
+    pool = _floorless(ChannelGain(), MissingScatterer())   # no twin to ask
     test = {"shared": -5.0, "own": 9.0, "penalty": 14.0}
     _, best = _rank_round(_FixedTiers(gains, {"object_pattern": test}), pool, 1.0, 10, None,
                           0.0, set())
@@ -1163,9 +1162,7 @@ def test_20_a_mean_candidate_must_lower_the_held_out_residual_energy():
         def on_one_scale(self, ranking, best, *args):
             return ranking, best
 
-    pool = [ChannelGain(), MissingScatterer(), NoiseFloor()]
-    for c in pool:
-        c.gain_floor = lambda ctx: 0.0
+    pool = _floorless(ChannelGain(), MissingScatterer(), NoiseFloor())
 
     def s(name, gain, db):
         return CandidateScore(name, 1, gain, gain / 1e4, gain - 1, [gain], energy_change_db=db)
